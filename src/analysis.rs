@@ -1,0 +1,142 @@
+//! Figures an engineer reads off a run: following-error and position-error peaks and RMS,
+//! and the peak error after each reversal of the command, split by direction.
+
+use crate::trace::Trace;
+
+/// Increments of the command below this (mm) are standstill, not motion.
+const MOVE_EPS_MM: f64 = 1e-9;
+/// Longest window after a reversal in which its peak error is looked for.
+const REVERSAL_WINDOW_S: f64 = 0.25;
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Reversal {
+    pub t_s: f64,
+    pub pos_mm: f64,
+    /// "+→−" or "−→+".
+    pub direction: String,
+    /// Largest |cmd − pos| in the window after the reversal.
+    pub peak_err_mm: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct AxisSummary {
+    pub axis: String,
+    pub max_ferr_mm: f64,
+    pub rms_ferr_mm: f64,
+    pub max_err_mm: f64,
+    pub rms_err_mm: f64,
+    pub reversals: Vec<Reversal>,
+}
+
+/// Finds reversals of `cmd`: sign changes of its increments, standstill keeping the last
+/// direction. Returns (sample index, +1 for −→+ / −1 for +→−).
+pub fn reversals(cmd: &[f64]) -> Vec<(usize, f64)> {
+    let mut out = Vec::new();
+    let mut dir = 0.0;
+    let mut last_move = 0;
+    for i in 1..cmd.len() {
+        let d = cmd[i] - cmd[i - 1];
+        if d.abs() <= MOVE_EPS_MM || !d.is_finite() {
+            continue;
+        }
+        let s = d.signum();
+        if dir != 0.0 && s != dir {
+            out.push((last_move, s));
+        }
+        dir = s;
+        last_move = i;
+    }
+    out
+}
+
+fn max_rms(v: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut max, mut sq, mut n) = (0.0_f64, 0.0, 0usize);
+    for x in v.filter(|x| x.is_finite()) {
+        max = max.max(x.abs());
+        sq += x * x;
+        n += 1;
+    }
+    (max, if n > 0 { (sq / n as f64).sqrt() } else { 0.0 })
+}
+
+pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
+    let t = trace.t();
+    trace
+        .axes()
+        .into_iter()
+        .filter_map(|axis| {
+            let cmd = trace.values(&format!("{axis}.cmd"))?;
+            let pos = trace.values(&format!("{axis}.pos"))?;
+            let err: Vec<f64> = cmd.iter().zip(pos).map(|(c, p)| c - p).collect();
+            let (max_err_mm, rms_err_mm) = max_rms(err.iter().copied());
+            let (max_ferr_mm, rms_ferr_mm) = match trace.values(&format!("{axis}.ferr")) {
+                Some(f) => max_rms(f.iter().copied()),
+                None => (max_err_mm, rms_err_mm),
+            };
+            let revs = reversals(cmd);
+            let reversals = revs
+                .iter()
+                .enumerate()
+                .map(|(n, &(i, s))| {
+                    let t0 = t[i];
+                    let t_end = revs
+                        .get(n + 1)
+                        .map_or(f64::INFINITY, |&(k, _)| t[k])
+                        .min(t0 + REVERSAL_WINDOW_S);
+                    let peak = (i..t.len())
+                        .take_while(|&k| t[k] <= t_end)
+                        .map(|k| err[k].abs())
+                        .filter(|x| x.is_finite())
+                        .fold(0.0, f64::max);
+                    Reversal {
+                        t_s: t0,
+                        pos_mm: cmd[i],
+                        direction: if s > 0.0 { "−→+" } else { "+→−" }.into(),
+                        peak_err_mm: peak,
+                    }
+                })
+                .collect();
+            Some(AxisSummary {
+                axis,
+                max_ferr_mm,
+                rms_ferr_mm,
+                max_err_mm,
+                rms_err_mm,
+                reversals,
+            })
+        })
+        .collect()
+}
+
+/// A plain-text summary, as the CLI prints it.
+pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
+    let mut s = format!(
+        "samples: {}  duration: {:.4} s\n",
+        trace.len(),
+        trace.t().last().copied().unwrap_or(0.0)
+    );
+    for a in sums {
+        s += &format!(
+            "axis {}: following error max {:.4} µm, rms {:.4} µm; position error (cmd − actual) max {:.4} µm, rms {:.4} µm\n",
+            a.axis,
+            a.max_ferr_mm * 1e3,
+            a.rms_ferr_mm * 1e3,
+            a.max_err_mm * 1e3,
+            a.rms_err_mm * 1e3
+        );
+        if a.reversals.is_empty() {
+            s += "  no reversals\n";
+        }
+        for r in &a.reversals {
+            s += &format!(
+                "  reversal {} at t = {:.4} s, {} = {:.4} mm: peak error {:.4} µm\n",
+                r.direction,
+                r.t_s,
+                a.axis,
+                r.pos_mm,
+                r.peak_err_mm * 1e3
+            );
+        }
+    }
+    s
+}

@@ -1,0 +1,23 @@
+//! axisbench: a simulated CNC feed-axis machine (NC, amplifier, plant, structure) for tuning
+//! and teaching compensation functions, and for diagnosing where a model disagrees with a
+//! measured machine. This crate is the model; it knows nothing of the GUI.
+//!
+//! Data flows one way, the way the machine does:
+//! program → [`nc`] (parse, interpolate, acc/dec, modes) → [`comp`] (position corrections)
+//! → [`servo`] (position/velocity loops, torque) → [`plant`] → [`trace`].
+//! [`machine::Machine`] wires one period T3 of all of it.
+
+pub mod analysis;
+pub mod bench;
+pub mod comp;
+pub mod fsutil;
+pub mod machine;
+pub mod nc;
+pub mod plant;
+pub mod preset;
+pub mod servo;
+pub mod trace;
+
+pub use machine::{Machine, MachineError};
+pub use preset::{LoadedPreset, Preset};
+pub use trace::Trace;

@@ -1,0 +1,608 @@
+//! The machine: NC channels → position compensations → amplifier (+ servo compensations) →
+//! plant → structure (crossbeam sag) → trace, stepped once per T3.
+//!
+//! Timing, per T3 step k:
+//! - at every T2 boundary (k mod n23 = 0) each channel produces the next T2 of commands
+//!   (normal: one position at the end of the period, which the amplifier subdivides
+//!   linearly into n23 T3 steps; direct: a batch of n23 T3 samples). The position
+//!   compensations run on what is generated: once per T2 in normal mode, once per T3 sample
+//!   when any channel is in direct mode;
+//! - the amplifier of each axis then runs its T3 loop on the compensated command;
+//! - the plant advances by T3, the beam sag follows the X positions of the tool posts;
+//! - the trace records the sample.
+
+use crate::comp::{CompStack, PosCompCtx, ServoCompCtx, ServoCompOut};
+use crate::nc::Channel;
+use crate::nc::program::{self, ProgramError};
+use crate::plant::{AxisPlant, Beam};
+use crate::preset::{Feedback, LoadedPreset, Mode, Preset, PresetError};
+use crate::servo::{Servo, force_per_torque};
+use crate::trace::Trace;
+
+#[derive(Debug, thiserror::Error)]
+pub enum MachineError {
+    #[error(transparent)]
+    Preset(#[from] PresetError),
+    #[error(transparent)]
+    Program(#[from] ProgramError),
+    #[error("{0}")]
+    Structure(String),
+}
+
+/// Per-axis runtime: amplifier, plant and the command buffer of the current T2 period.
+pub struct AxisRt {
+    pub name: String,
+    pub channel: usize,
+    /// Index of this axis inside its channel.
+    pub ch_idx: usize,
+    pub servo: Servo,
+    pub plant: AxisPlant,
+    lead_m: f64,
+    buf_raw: Vec<f64>,
+    buf_comp: Vec<f64>,
+    prev_raw_m: f64,
+    prev_comp_m: f64,
+    /// Command of this T3 before compensation (what the program asked for), m.
+    pub cmd_raw_m: f64,
+    /// Command from the NC after the position compensations, m.
+    pub cmd_nc_m: f64,
+    /// Command the position loop saw (after all compensations), m.
+    pub cmd_m: f64,
+    /// Structural displacement the scale does not see (crossbeam sag), m.
+    pub sag_m: f64,
+    /// True tool position: plant position plus sag, m.
+    pub pos_m: f64,
+    pub servo_add: ServoCompOut,
+    post_z: bool,
+}
+
+impl AxisRt {
+    pub fn feedback_m(&self) -> f64 {
+        match self.servo.feedback {
+            Feedback::Motor => self.plant.out.motor_enc_m,
+            Feedback::Scale => self.plant.out.scale_m,
+        }
+    }
+    pub fn torque_cmd_nm(&self) -> f64 {
+        self.servo.force_cmd_n / force_per_torque(self.lead_m)
+    }
+    pub fn torque_nm(&self) -> f64 {
+        self.servo.force_n / force_per_torque(self.lead_m)
+    }
+}
+
+struct Recorder {
+    every: u32,
+    axis_cols: Vec<usize>,
+    temp_cols: Vec<usize>,
+    ambient_col: usize,
+    mode_cols: Vec<usize>,
+    comp_cols: Vec<usize>,
+    comp_vals: Vec<f64>,
+}
+
+const AXIS_SIGNALS: &[(&str, &str)] = &[
+    ("cmd", "mm"),
+    ("cmd_comp", "mm"),
+    ("comp", "mm"),
+    ("motor_pos", "mm"),
+    ("pos", "mm"),
+    ("err", "mm"),
+    ("ferr", "mm"),
+    ("vel", "mm/s"),
+    ("torque_cmd", "N*m"),
+    ("torque", "N*m"),
+    ("force", "N"),
+    ("friction", "N"),
+    ("gap", "mm"),
+    ("thermal", "mm"),
+    ("lead_err", "mm"),
+    ("sag", "mm"),
+];
+
+pub struct Machine {
+    pub preset: Preset,
+    pub t3_s: f64,
+    pub n12: u32,
+    pub n23: u32,
+    /// T3 steps done.
+    pub k: u64,
+    pub channels: Vec<Channel>,
+    pub axes: Vec<AxisRt>,
+    beam: Option<Beam>,
+    comps: CompStack,
+    comp_counts: Vec<usize>,
+    plc_next: usize,
+    ch_target: Vec<Vec<f64>>,
+    ch_batch: Vec<Vec<f64>>,
+    ch_mode: Vec<Mode>,
+    comp_cmd: Vec<f64>,
+    comp_prev: Vec<f64>,
+    comp_out: Vec<f64>,
+    comp_fb: Vec<f64>,
+    comp_temp: Vec<f64>,
+    x_pos: Vec<f64>,
+    pub trace: Trace,
+    rec: Option<Recorder>,
+    end_k: Option<u64>,
+}
+
+impl Machine {
+    /// Builds a machine from a loaded preset, reading its program files.
+    pub fn from_loaded(lp: &LoadedPreset) -> Result<Machine, MachineError> {
+        let texts = lp
+            .preset
+            .scenario
+            .programs
+            .iter()
+            .map(|p| Ok((p.clone(), lp.program_text(p)?)))
+            .collect::<Result<Vec<_>, PresetError>>()?;
+        Machine::new(&lp.preset, &texts)
+    }
+
+    /// Builds a machine from a preset and the text of each channel's program
+    /// (`(file name for errors, text)`).
+    pub fn new(preset: &Preset, programs: &[(String, String)]) -> Result<Machine, MachineError> {
+        let errors = preset.validate();
+        if !errors.is_empty() {
+            return Err(PresetError::Invalid {
+                file: preset.name.clone(),
+                errors,
+            }
+            .into());
+        }
+        if programs.len() != preset.scenario.programs.len() {
+            return Err(MachineError::Structure(format!(
+                "{} programs given, the preset has {} channels",
+                programs.len(),
+                preset.scenario.programs.len()
+            )));
+        }
+        let t = &preset.timing;
+        let (n12, n23) = match (
+            crate::preset::ratio(t.t1_s, t.t2_s),
+            crate::preset::ratio(t.t2_s, t.t3_s),
+        ) {
+            (Some(a), Some(b)) => (a, b),
+            _ => return Err(MachineError::Structure("timing ratios".into())),
+        };
+        let t3 = t.t3_s;
+        let mut channels = Vec::new();
+        let mut axes: Vec<AxisRt> = Vec::new();
+        for (ci, (file, text)) in programs.iter().enumerate() {
+            let ch_axes: Vec<(usize, &crate::preset::AxisParams)> = preset
+                .axes
+                .iter()
+                .enumerate()
+                .filter(|(_, a)| a.channel == ci)
+                .collect();
+            let letters: Vec<char> = ch_axes.iter().map(|(_, a)| a.letter).collect();
+            let start: Vec<f64> = ch_axes
+                .iter()
+                .map(|(_, a)| a.initial_pos_mm * 1e-3)
+                .collect();
+            let blocks = program::parse(text, file)?;
+            let ops = program::compile(
+                &blocks,
+                &letters,
+                &start,
+                preset.nc.default_feed_mm_per_min,
+                preset.nc.rapid_mm_per_min,
+                file,
+            )?;
+            channels.push(Channel::new(
+                ops,
+                &start,
+                preset.nc.initial_mode,
+                preset.nc.accdec.clone(),
+                crate::nc::ChannelTiming {
+                    t1_s: t.t1_s,
+                    t3_s: t3,
+                    n12,
+                    n23,
+                },
+            ));
+        }
+        for a in &preset.axes {
+            let ch_idx = preset
+                .axes
+                .iter()
+                .filter(|b| b.channel == a.channel)
+                .position(|b| b.name == a.name)
+                .unwrap_or(0);
+            let x0 = a.initial_pos_mm * 1e-3;
+            let plant = AxisPlant::new(a, t3, x0);
+            let pos = plant.out.pos_m;
+            axes.push(AxisRt {
+                name: a.name.clone(),
+                channel: a.channel,
+                ch_idx,
+                servo: Servo::new(a, t3, x0),
+                plant,
+                lead_m: a.drive.lead_mm * 1e-3,
+                buf_raw: vec![x0; n23 as usize],
+                buf_comp: vec![x0; n23 as usize],
+                prev_raw_m: x0,
+                prev_comp_m: x0,
+                cmd_raw_m: x0,
+                cmd_nc_m: x0,
+                cmd_m: x0,
+                sag_m: 0.0,
+                pos_m: pos,
+                servo_add: ServoCompOut::default(),
+                post_z: false,
+            });
+        }
+        let beam = Beam::new(&preset.crossbeam, |n| axes.iter().position(|a| a.name == n));
+        if let Some(b) = &beam {
+            for p in &b.posts {
+                axes[p.z_axis].post_z = true;
+            }
+        }
+        let n_ax = axes.len();
+        let ch_sizes: Vec<usize> = (0..channels.len())
+            .map(|c| axes.iter().filter(|a| a.channel == c).count())
+            .collect();
+        let mut m = Machine {
+            preset: preset.clone(),
+            t3_s: t3,
+            n12,
+            n23,
+            k: 0,
+            ch_target: ch_sizes.iter().map(|&n| vec![0.0; n]).collect(),
+            ch_batch: ch_sizes
+                .iter()
+                .map(|&n| vec![0.0; n * n23 as usize])
+                .collect(),
+            ch_mode: vec![preset.nc.initial_mode; channels.len()],
+            channels,
+            axes,
+            beam,
+            comps: CompStack::default(),
+            comp_counts: vec![],
+            plc_next: 0,
+            comp_cmd: vec![0.0; n_ax],
+            comp_prev: vec![0.0; n_ax],
+            comp_out: vec![0.0; n_ax],
+            comp_fb: vec![0.0; n_ax],
+            comp_temp: vec![0.0; n_ax],
+            x_pos: vec![0.0; n_ax],
+            trace: Trace::new(),
+            rec: None,
+            end_k: None,
+        };
+        for (i, a) in m.axes.iter().enumerate() {
+            m.comp_prev[i] = a.prev_raw_m;
+        }
+        m.update_sag();
+        m.set_recording(true);
+        Ok(m)
+    }
+
+    /// Installs the compensations (replaces any installed before) and re-lays the trace.
+    pub fn set_comps(&mut self, comps: CompStack) {
+        self.comp_counts = comps
+            .position
+            .iter()
+            .map(|c| c.signals().len())
+            .chain(comps.servo.iter().map(|c| c.signals().len()))
+            .collect();
+        self.comps = comps;
+        let on = self.rec.is_some();
+        self.set_recording(on);
+    }
+
+    pub fn comps(&self) -> &CompStack {
+        &self.comps
+    }
+
+    pub fn comps_mut(&mut self) -> &mut CompStack {
+        &mut self.comps
+    }
+
+    /// Turns trace recording on (a fresh trace) or off (benchmarks, batch fitting).
+    pub fn set_recording(&mut self, on: bool) {
+        self.trace = Trace::new();
+        if !on {
+            self.rec = None;
+            return;
+        }
+        let tr = &mut self.trace;
+        tr.meta.push(("source".into(), "simulated".into()));
+        tr.meta.push(("preset".into(), self.preset.name.clone()));
+        tr.meta.push(("t3_s".into(), format!("{}", self.t3_s)));
+        let mut axis_cols = Vec::new();
+        for a in &self.axes {
+            axis_cols.push(tr.signals.len());
+            for (s, u) in AXIS_SIGNALS {
+                tr.add_signal(&format!("{}.{s}", a.name), u);
+            }
+        }
+        let temp_cols = self
+            .axes
+            .iter()
+            .map(|a| tr.add_signal(&format!("temp.{}_screw", a.name), "degC"))
+            .collect();
+        let ambient_col = tr.add_signal("temp.ambient", "degC");
+        let mode_cols = (0..self.channels.len())
+            .map(|c| {
+                if c == 0 {
+                    tr.add_signal("mode", "")
+                } else {
+                    tr.add_signal(&format!("mode.ch{}", c + 1), "")
+                }
+            })
+            .collect();
+        let comp_cols: Vec<usize> = self
+            .comps
+            .signals()
+            .iter()
+            .map(|s| {
+                let name = if s.axis.is_empty() {
+                    s.signal.clone()
+                } else {
+                    format!("{}.{}", s.axis, s.signal)
+                };
+                tr.add_signal(&name, &s.unit)
+            })
+            .collect();
+        self.rec = Some(Recorder {
+            every: self.preset.scenario.trace_every.max(1),
+            axis_cols,
+            temp_cols,
+            ambient_col,
+            mode_cols,
+            comp_vals: vec![0.0; comp_cols.len()],
+            comp_cols,
+        });
+    }
+
+    pub fn t_s(&self) -> f64 {
+        self.k as f64 * self.t3_s
+    }
+
+    /// All programs done, filters drained, and the settle time passed (or the fixed
+    /// scenario duration reached).
+    pub fn done(&self) -> bool {
+        match self.preset.scenario.duration_s {
+            Some(d) => self.t_s() >= d - 0.5 * self.t3_s,
+            None => match self.end_k {
+                Some(e) => {
+                    (self.k - e) as f64 * self.t3_s
+                        >= self.preset.scenario.settle_s - 0.5 * self.t3_s
+                }
+                None => false,
+            },
+        }
+    }
+
+    /// Runs until [`Machine::done`] or `max_s` of machine time, whichever is first.
+    pub fn run(&mut self, max_s: f64) {
+        let max_k = (max_s / self.t3_s).ceil() as u64;
+        while !self.done() && self.k < max_k {
+            self.step();
+        }
+    }
+
+    /// Runs `n` T3 steps.
+    pub fn run_steps(&mut self, n: u64) {
+        for _ in 0..n {
+            self.step();
+        }
+    }
+
+    /// One T3 period of the whole machine.
+    pub fn step(&mut self) {
+        let t = self.t_s();
+        while let Some(ev) = self.preset.scenario.plc_events.get(self.plc_next) {
+            if ev.t_s > t + 0.5 * self.t3_s {
+                break;
+            }
+            if let Some(ch) = self.channels.get_mut(ev.channel) {
+                ch.request_mode(ev.mode);
+            }
+            self.plc_next += 1;
+        }
+        let j = (self.k % self.n23 as u64) as usize;
+        if j == 0 {
+            self.tick_t2(t);
+        }
+        for (i, a) in self.axes.iter_mut().enumerate() {
+            let mut add = ServoCompOut::default();
+            let ctx = ServoCompCtx {
+                t_s: t,
+                t3_s: self.t3_s,
+                cmd_m: a.buf_comp[j],
+                prev_cmd_m: a.cmd_nc_m,
+                fb_m: a.feedback_m(),
+            };
+            for c in self.comps.servo.iter_mut().filter(|c| c.axis() == i) {
+                let mut o = ServoCompOut::default();
+                c.step(&ctx, &mut o);
+                add.pos_m += o.pos_m;
+                add.vel_mps += o.vel_mps;
+                add.torque_nm += o.torque_nm;
+            }
+            a.servo_add = add;
+            a.cmd_raw_m = a.buf_raw[j];
+            a.cmd_nc_m = a.buf_comp[j];
+            a.cmd_m = a.buf_comp[j] + add.pos_m;
+            let input = crate::servo::ServoInput {
+                cmd_m: a.cmd_m,
+                fb_pos_m: a.feedback_m(),
+                motor_pos_m: a.plant.out.motor_enc_m,
+                vel_add_mps: add.vel_mps,
+                force_ff_n: add.torque_nm * force_per_torque(a.lead_m),
+            };
+            let force = a.servo.step(&input);
+            a.plant.step(force);
+        }
+        self.update_sag();
+        self.k += 1;
+        if self.end_k.is_none() && self.channels.iter().all(Channel::finished) {
+            self.end_k = Some(self.k);
+        }
+        if self.rec.is_some() {
+            self.record();
+        }
+    }
+
+    fn update_sag(&mut self) {
+        if let Some(beam) = &self.beam {
+            for (i, a) in self.axes.iter().enumerate() {
+                self.x_pos[i] = a.plant.out.pos_m;
+            }
+            let mut sag = [0.0; 2];
+            beam.sag_m(&self.x_pos, &mut sag);
+            for (p, s) in beam.posts.iter().zip(sag) {
+                self.axes[p.z_axis].sag_m = s;
+            }
+        }
+        for a in &mut self.axes {
+            a.pos_m = a.plant.out.pos_m + a.sag_m;
+        }
+    }
+
+    /// Generates the next T2 of commands in every channel and runs the position
+    /// compensations on them.
+    fn tick_t2(&mut self, t: f64) {
+        let n23 = self.n23 as usize;
+        for (c, ch) in self.channels.iter_mut().enumerate() {
+            self.ch_mode[c] = ch.tick_t2(&mut self.ch_target[c], &mut self.ch_batch[c]);
+        }
+        for (i, a) in self.axes.iter().enumerate() {
+            self.comp_fb[i] = a.feedback_m();
+            self.comp_temp[i] = a.plant.thermal.temp_c;
+        }
+        let any_direct = self.ch_mode.contains(&Mode::Direct);
+        let gens = if any_direct { n23 } else { 1 };
+        let period = if any_direct {
+            self.t3_s
+        } else {
+            self.t3_s * n23 as f64
+        };
+        for g in 0..gens {
+            for (i, a) in self.axes.iter().enumerate() {
+                self.comp_cmd[i] = match self.ch_mode[a.channel] {
+                    Mode::Direct => self.ch_batch[a.channel][a.ch_idx * n23 + g],
+                    Mode::Normal => {
+                        let target = self.ch_target[a.channel][a.ch_idx];
+                        a.prev_raw_m
+                            + (target - a.prev_raw_m) * ((g + 1) * n23 / gens) as f64 / n23 as f64
+                    }
+                };
+            }
+            self.comp_out.iter_mut().for_each(|o| *o = 0.0);
+            let ctx = PosCompCtx {
+                t_s: t + g as f64 * self.t3_s,
+                period_s: period,
+                cmd_m: &self.comp_cmd,
+                prev_cmd_m: &self.comp_prev,
+                fb_m: &self.comp_fb,
+                temps_c: &self.comp_temp,
+            };
+            for c in self.comps.position.iter_mut() {
+                c.step(&ctx, &mut self.comp_out);
+            }
+            for (i, a) in self.axes.iter_mut().enumerate() {
+                let raw = self.comp_cmd[i];
+                let comp = raw + self.comp_out[i];
+                if any_direct {
+                    a.buf_raw[g] = raw;
+                    a.buf_comp[g] = comp;
+                } else {
+                    for jj in 0..n23 {
+                        let f = (jj + 1) as f64 / n23 as f64;
+                        a.buf_raw[jj] = a.prev_raw_m + (raw - a.prev_raw_m) * f;
+                        a.buf_comp[jj] = a.prev_comp_m + (comp - a.prev_comp_m) * f;
+                    }
+                    a.buf_raw[n23 - 1] = raw;
+                    a.buf_comp[n23 - 1] = comp;
+                }
+            }
+            self.comp_prev.clone_from(&self.comp_cmd);
+        }
+        for a in &mut self.axes {
+            a.prev_raw_m = a.buf_raw[n23 - 1];
+            a.prev_comp_m = a.buf_comp[n23 - 1];
+        }
+    }
+
+    fn record(&mut self) {
+        let Some(rec) = &mut self.rec else { return };
+        if !self.k.is_multiple_of(rec.every as u64) {
+            return;
+        }
+        let tr = &mut self.trace;
+        tr.signals[0].data.push(self.k as f64 * self.t3_s);
+        for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
+            let o = &a.plant.out;
+            let vals = [
+                a.cmd_raw_m * 1e3,
+                a.cmd_m * 1e3,
+                (a.cmd_m - a.cmd_raw_m) * 1e3,
+                o.motor_pos_m * 1e3,
+                a.pos_m * 1e3,
+                (a.cmd_raw_m - a.pos_m) * 1e3,
+                a.servo.ferr_m * 1e3,
+                o.vel_mps * 1e3,
+                a.torque_cmd_nm(),
+                a.torque_nm(),
+                a.servo.force_n,
+                o.friction_n,
+                o.gap_m * 1e3,
+                o.thermal_m * 1e3,
+                o.lead_err_m * 1e3,
+                a.sag_m * 1e3,
+            ];
+            for (i, v) in vals.into_iter().enumerate() {
+                tr.signals[base + i].data.push(v);
+            }
+        }
+        for (a, &c) in self.axes.iter().zip(&rec.temp_cols) {
+            tr.signals[c].data.push(a.plant.thermal.temp_c);
+        }
+        let amb = self
+            .axes
+            .first()
+            .map_or(20.0, |a| a.plant.thermal.ambient_c);
+        tr.signals[rec.ambient_col].data.push(amb);
+        for (ch, &c) in self.channels.iter().zip(&rec.mode_cols) {
+            tr.signals[c].data.push(ch.mode.as_f64());
+        }
+        if !rec.comp_cols.is_empty() {
+            let mut at = 0;
+            let counts = &self.comp_counts;
+            let comps = self
+                .comps
+                .position
+                .iter()
+                .map(|c| c as &dyn CompValues)
+                .chain(self.comps.servo.iter().map(|c| c as &dyn CompValues));
+            for (c, &n) in comps.zip(counts) {
+                c.vals(&mut rec.comp_vals[at..at + n]);
+                at += n;
+            }
+            for (&col, &v) in rec.comp_cols.iter().zip(&rec.comp_vals) {
+                tr.signals[col].data.push(v);
+            }
+        }
+    }
+}
+
+/// Lets the recorder read both kinds of compensation through one call.
+trait CompValues {
+    fn vals(&self, out: &mut [f64]);
+}
+
+impl CompValues for Box<dyn crate::comp::PositionComp> {
+    fn vals(&self, out: &mut [f64]) {
+        self.values(out);
+    }
+}
+
+impl CompValues for Box<dyn crate::comp::ServoComp> {
+    fn vals(&self, out: &mut [f64]) {
+        self.values(out);
+    }
+}
