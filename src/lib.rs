@@ -16,6 +16,7 @@ pub mod nc;
 pub mod plant;
 pub mod preset;
 pub mod servo;
+pub mod table;
 pub mod trace;
 
 pub use machine::{Machine, MachineError};

@@ -38,6 +38,8 @@ pub struct AxisRt {
     pub servo: Servo,
     pub plant: AxisPlant,
     lead_m: f64,
+    /// Load-side force per motor torque, 2π/lead.
+    f_per_t: f64,
     buf_raw: Vec<f64>,
     buf_comp: Vec<f64>,
     prev_raw_m: f64,
@@ -107,6 +109,10 @@ pub struct Machine {
     pub n23: u32,
     /// T3 steps done.
     pub k: u64,
+    /// k mod n23: position inside the current T2 period.
+    phase: usize,
+    /// (j + 1)/n23 for j in 0..n23: where each T3 lies on the amplifier's interpolation.
+    frac: Vec<f64>,
     pub channels: Vec<Channel>,
     pub axes: Vec<AxisRt>,
     beam: Option<Beam>,
@@ -220,6 +226,7 @@ impl Machine {
                 servo: Servo::new(a, t3, x0),
                 plant,
                 lead_m: a.drive.lead_mm * 1e-3,
+                f_per_t: force_per_torque(a.drive.lead_mm * 1e-3),
                 buf_raw: vec![x0; n23 as usize],
                 buf_comp: vec![x0; n23 as usize],
                 prev_raw_m: x0,
@@ -249,6 +256,8 @@ impl Machine {
             n12,
             n23,
             k: 0,
+            phase: 0,
+            frac: (1..=n23).map(|j| j as f64 / n23 as f64).collect(),
             ch_target: ch_sizes.iter().map(|&n| vec![0.0; n]).collect(),
             ch_batch: ch_sizes
                 .iter()
@@ -403,7 +412,7 @@ impl Machine {
             }
             self.plc_next += 1;
         }
-        let j = (self.k % self.n23 as u64) as usize;
+        let j = self.phase;
         if j == 0 {
             self.tick_t2(t);
         }
@@ -432,14 +441,18 @@ impl Machine {
                 fb_pos_m: a.feedback_m(),
                 motor_pos_m: a.plant.out.motor_enc_m,
                 vel_add_mps: add.vel_mps,
-                force_ff_n: add.torque_nm * force_per_torque(a.lead_m),
+                force_ff_n: add.torque_nm * a.f_per_t,
             };
             let force = a.servo.step(&input);
             a.plant.step(force);
+            a.pos_m = a.plant.out.pos_m + a.sag_m;
         }
-        self.update_sag();
+        if self.beam.is_some() {
+            self.update_sag();
+        }
         self.k += 1;
-        if self.end_k.is_none() && self.channels.iter().all(Channel::finished) {
+        self.phase = if j + 1 == self.n23 as usize { 0 } else { j + 1 };
+        if j == 0 && self.end_k.is_none() && self.channels.iter().all(Channel::finished) {
             self.end_k = Some(self.k);
         }
         if self.rec.is_some() {
@@ -512,7 +525,7 @@ impl Machine {
                     a.buf_comp[g] = comp;
                 } else {
                     for jj in 0..n23 {
-                        let f = (jj + 1) as f64 / n23 as f64;
+                        let f = self.frac[jj];
                         a.buf_raw[jj] = a.prev_raw_m + (raw - a.prev_raw_m) * f;
                         a.buf_comp[jj] = a.prev_comp_m + (comp - a.prev_comp_m) * f;
                     }

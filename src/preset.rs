@@ -335,6 +335,10 @@ pub struct LeadError {
     pub phase_deg: f64,
     #[serde(default)]
     pub cumulative_um_per_m: f64,
+    /// Measured lead deviation (position mm, error µm), added to the cyclic part;
+    /// interpolated linearly, end values held.
+    #[serde(default)]
+    pub table: Vec<(f64, f64)>,
 }
 
 /// Crossbeam of a vertical lathe: a simply supported beam along X carrying one or two tool
@@ -722,6 +726,11 @@ impl Preset {
                 &format!("{p}.lead_error.cumulative_um_per_m"),
                 a.lead_error.cumulative_um_per_m,
             );
+            for (path, reason) in
+                crate::table::check(&format!("{p}.lead_error.table"), &a.lead_error.table, 0)
+            {
+                v.err(&path, reason);
+            }
         }
         let cb = &self.crossbeam;
         if cb.enabled {

@@ -19,6 +19,7 @@ pub struct Servo {
     cur_alpha: f64,
     force_limit_n: f64,
     t3_s: f64,
+    inv_t3: f64,
     avg2: bool,
     pub feedback: Feedback,
     pub integ_n: f64,
@@ -62,6 +63,7 @@ impl Servo {
             cur_alpha: current_alpha(s.current_lag_s, t3_s),
             force_limit_n: s.torque_limit_nm * force_per_torque(lead_m),
             t3_s,
+            inv_t3: 1.0 / t3_s,
             avg2: s.vel_filter_avg2,
             feedback: s.feedback,
             integ_n: 0.0,
@@ -88,15 +90,16 @@ impl Servo {
     }
 
     /// One T3 period. Returns the actual (current-loop) force on the load side.
+    #[inline]
     pub fn step(&mut self, inp: &ServoInput) -> f64 {
         let t3 = self.t3_s;
         let vel_fb = if self.avg2 {
-            (inp.motor_pos_m - self.motor_hist_m[1]) / (2.0 * t3)
+            (inp.motor_pos_m - self.motor_hist_m[1]) * (0.5 * self.inv_t3)
         } else {
-            (inp.motor_pos_m - self.motor_hist_m[0]) / t3
+            (inp.motor_pos_m - self.motor_hist_m[0]) * self.inv_t3
         };
         self.motor_hist_m = [inp.motor_pos_m, self.motor_hist_m[0]];
-        let vel_ff = self.vff * (inp.cmd_m - self.prev_cmd_m) / t3;
+        let vel_ff = self.vff * (inp.cmd_m - self.prev_cmd_m) * self.inv_t3;
         self.prev_cmd_m = inp.cmd_m;
         self.ferr_m = inp.cmd_m - inp.fb_pos_m;
         let vel_cmd = self.kp_per_s * self.ferr_m + vel_ff + inp.vel_add_mps;

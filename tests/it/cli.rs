@@ -1,0 +1,87 @@
+//! The binary, as a user runs it.
+
+use std::process::Command;
+
+fn bin() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_axisbench"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c
+}
+
+#[test]
+fn simulate_writes_a_trace_and_prints_a_summary() {
+    let out = std::env::temp_dir().join(format!("axisbench-cli-{}.csv", std::process::id()));
+    let o = bin()
+        .args(["simulate", "--preset", "presets/default.ron", "--out"])
+        .arg(&out)
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("samples:") && stdout.contains("following error max"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("reversal +→−"), "{stdout}");
+    let t = axisbench::Trace::read_csv(&out, None).expect("valid trace");
+    assert_eq!(t.axes(), vec!["x".to_owned()]);
+    let _ = std::fs::remove_file(out);
+}
+
+#[test]
+fn validate_exits_nonzero_listing_errors() {
+    let dir = std::env::temp_dir().join(format!("axisbench-cli-v-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let bad = dir.join("bad.ron");
+    let text = axisbench::preset::embedded("default.ron")
+        .expect("embedded")
+        .replace("table_mass_kg: 300.0", "table_mass_kg: -3.0")
+        .replace("coulomb_n: 250.0", "coulomb_n: NaN");
+    std::fs::write(&bad, text).expect("write");
+    let o = bin().arg("validate").arg(&bad).output().expect("runs");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("table_mass_kg") && stderr.contains("coulomb_n"),
+        "{stderr}"
+    );
+    let o = bin()
+        .args(["validate", "presets/default.ron", "presets/emps.ron"])
+        .output()
+        .expect("runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn no_display_points_to_the_cli() {
+    let o = bin()
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("no display") && stderr.contains("axisbench simulate"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_bad_program_names_its_line() {
+    let dir = std::env::temp_dir().join(format!("axisbench-cli-p-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let prog = dir.join("bad.ngc");
+    std::fs::write(&prog, "G90 G01 F1000\nX10\nG42 X3\n").expect("write");
+    let o = bin()
+        .args(["simulate", "--program"])
+        .arg(&prog)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        stderr.contains("bad.ngc:3:1") && stderr.contains("G42"),
+        "{stderr}"
+    );
+}

@@ -1,0 +1,44 @@
+use axisbench::preset::{self, AccDecKind, Mode, Preset};
+use axisbench::{Machine, Trace};
+
+/// The default preset with every plant effect off and an ideal (unquantized) encoder: the
+/// base for analytic checks.
+pub fn plain() -> Preset {
+    let mut p = preset::load_embedded("default.ron")
+        .expect("default preset")
+        .preset;
+    let a = &mut p.axes[0];
+    a.friction.enabled = false;
+    a.backlash.enabled = false;
+    a.thermal.enabled = false;
+    a.lead_error.enabled = false;
+    a.gravity.enabled = false;
+    a.encoder.quantize_motor = false;
+    a.encoder.quantize_scale = false;
+    a.servo.vff = 0.0;
+    a.initial_pos_mm = 0.0;
+    p.nc.accdec.kind = AccDecKind::None;
+    p.nc.initial_mode = Mode::Normal;
+    p.scenario.duration_s = None;
+    p.scenario.settle_s = 0.3;
+    p
+}
+
+/// Runs `program` (single channel) on `p` to its end plus settle time.
+pub fn run(p: &Preset, program: &str) -> Machine {
+    let mut m =
+        Machine::new(p, &[("test.ngc".into(), program.to_owned())]).expect("machine builds");
+    m.run(600.0);
+    assert!(m.done(), "run did not finish");
+    m
+}
+
+pub fn col<'a>(t: &'a Trace, name: &str) -> &'a [f64] {
+    t.values(name)
+        .unwrap_or_else(|| panic!("trace has no {name}"))
+}
+
+/// Index of the first sample at or after `t_s`.
+pub fn at(t: &Trace, t_s: f64) -> usize {
+    t.t().partition_point(|&x| x < t_s)
+}

@@ -1,0 +1,8 @@
+//! All integration tests in one binary (each tests/*.rs file would be its own large binary).
+
+mod cli;
+mod common;
+mod nc;
+mod physics;
+mod presets;
+mod trace_io;

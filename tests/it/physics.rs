@@ -1,0 +1,406 @@
+//! Analytic and physical checks of the amplifier and the plant.
+
+use axisbench::preset::{Coupling, Mode};
+use axisbench::servo::force_per_torque;
+
+use crate::common::{at, col, plain, run};
+
+#[test]
+fn ramp_following_error_is_v_over_kp() {
+    let p = plain();
+    let kp = p.axes[0].servo.kp_per_s;
+    // 100 mm/s for 2 s.
+    let m = run(&p, "G90 G01 X200. F6000\nM30\n");
+    let tr = &m.trace;
+    let ferr = col(tr, "x.ferr");
+    let expected_mm = 100.0 / kp;
+    for t_s in [0.8, 1.0, 1.5] {
+        let e = ferr[at(tr, t_s)];
+        assert!(
+            (e - expected_mm).abs() < 0.01 * expected_mm,
+            "t = {t_s}: following error {e} mm, expected v/Kp = {expected_mm} mm"
+        );
+    }
+    // And it is gone once the axis stops.
+    let last = *ferr.last().unwrap_or(&f64::NAN);
+    assert!(
+        last.abs() < 1e-3 * expected_mm,
+        "residual error {last} mm at rest"
+    );
+}
+
+#[test]
+fn step_response_matches_second_order_analytic() {
+    // P position loop around a P velocity loop, ideal current loop, rigid axis:
+    // x'' = (kv/M)(kp (r − x) − x'), a second-order system with two real poles.
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.servo.ki_per_s = 0.0;
+    a.servo.current_lag_s = 0.0;
+    p.nc.initial_mode = Mode::Direct;
+    let (m_m, m_t) = axisbench::servo::masses(&p.axes[0]);
+    let kv_over_m = p.axes[0].servo.kv_n_s_per_m / (m_m + m_t);
+    let kp = p.axes[0].servo.kp_per_s;
+    let step_mm = 0.1;
+    let m = run(&p, "G05P4\nU0.1\nG04 P500\nM30\n");
+    let tr = &m.trace;
+    let cmd = col(tr, "x.cmd");
+    let pos = col(tr, "x.pos");
+    let k0 = cmd.iter().position(|&c| c > 0.0).expect("step arrives");
+    assert_eq!(
+        cmd[k0], step_mm,
+        "the amplifier sees the full step in one T3"
+    );
+    let disc = (kv_over_m * kv_over_m - 4.0 * kv_over_m * kp).sqrt();
+    let p1 = (-kv_over_m + disc) / 2.0;
+    let p2 = (-kv_over_m - disc) / 2.0;
+    let t0 = tr.t()[k0] - m.t3_s; // the command acts during the period ending at t[k0]
+    let mut worst = 0.0_f64;
+    let k1 = at(tr, t0 + 0.15);
+    for (t_abs, x) in tr.t()[k0..k1].iter().zip(&pos[k0..k1]) {
+        let t = t_abs - t0;
+        let analytic = step_mm * (1.0 + (p2 * (p1 * t).exp() - p1 * (p2 * t).exp()) / (p1 - p2));
+        worst = worst.max((x - analytic).abs());
+    }
+    assert!(
+        worst < 0.01 * step_mm,
+        "step response deviates {worst} mm from the analytic one"
+    );
+    let end = *pos.last().unwrap_or(&0.0);
+    assert!(
+        (end - step_mm).abs() < 1e-6,
+        "settles at {end} mm, expected {step_mm}"
+    );
+}
+
+#[test]
+fn torque_offset_at_constant_velocity_equals_coulomb() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.coulomb_n = 250.0;
+    a.friction.viscous_n_s_per_m = 0.0;
+    a.friction.stribeck.enabled = false;
+    let lead_m = a.drive.lead_mm * 1e-3;
+    let m = run(&p, "G90 G01 X100. F3000\nM30\n");
+    let tr = &m.trace;
+    let (i0, i1) = (at(tr, 0.8), at(tr, 1.6));
+    let torque = &col(tr, "x.torque")[i0..i1];
+    let mean = torque.iter().sum::<f64>() / torque.len() as f64;
+    let expected = 250.0 / force_per_torque(lead_m);
+    assert!(
+        (mean - expected).abs() < 0.01 * expected,
+        "torque offset {mean} N·m, expected Coulomb {expected} N·m"
+    );
+    let fric = col(tr, "x.friction")[at(tr, 1.0)];
+    assert!(
+        (fric + 250.0).abs() < 1e-9,
+        "friction force {fric} N while moving +"
+    );
+}
+
+#[test]
+fn uncompensated_backlash_loses_b_at_a_reversal() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.backlash.enabled = true;
+    a.backlash.width_um = 20.0;
+    a.friction.enabled = true;
+    let m = run(&p, "G90 G01 X10. F1000\nG04 P500\nX5.\nG04 P500\nM30\n");
+    let tr = &m.trace;
+    let err = col(tr, "x.err");
+    let after_plus = err[at(tr, 0.6 + 0.45)];
+    let after_minus = *err.last().unwrap_or(&f64::NAN);
+    let lost_um = (after_plus - after_minus) * 1e3;
+    assert!(
+        (lost_um - 20.0).abs() < 0.2,
+        "lost motion at the reversal {lost_um} µm, expected b = 20 µm"
+    );
+    // Semi-closed loop: the motor itself is exactly where it was told to be.
+    let ferr = *col(tr, "x.ferr").last().unwrap_or(&f64::NAN);
+    assert!(
+        ferr.abs() < 1e-6,
+        "motor-side following error {ferr} mm at rest"
+    );
+}
+
+#[test]
+fn closed_loop_on_the_scale_removes_the_backlash_error() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.backlash.enabled = true;
+    a.backlash.width_um = 20.0;
+    a.friction.enabled = true;
+    a.servo.feedback = axisbench::preset::Feedback::Scale;
+    let m = run(&p, "G90 G01 X10. F1000\nG04 P500\nX5.\nG04 P500\nM30\n");
+    let err = *col(&m.trace, "x.err").last().unwrap_or(&f64::NAN);
+    assert!(err.abs() < 1e-4, "closed loop leaves {err} mm at rest");
+}
+
+#[test]
+fn stick_holds_exactly_without_drift_or_chatter() {
+    // A slope load below the breakaway force: the table must stay put, velocity exactly 0.
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.coulomb_n = 300.0;
+    a.friction.stribeck.enabled = true;
+    a.friction.stribeck.static_n = 400.0;
+    a.gravity.enabled = true;
+    a.gravity.incline_deg = 0.0;
+    a.gravity.offset_n = 350.0; // pushes +, held by static friction
+    a.servo.torque_limit_nm = 1e-6; // drive effectively off
+    let m = run(&p, "G04 P1000\nM30\n");
+    let vel = col(&m.trace, "x.vel");
+    let pos = col(&m.trace, "x.pos");
+    assert!(vel.iter().all(|&v| v == 0.0), "table crept while stuck");
+    assert!(
+        pos.iter().all(|&x| x == pos[0]),
+        "table drifted while stuck"
+    );
+}
+
+#[test]
+fn stroke_friction_rises_on_short_strokes_and_recovers_on_long_ones() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.viscous_n_s_per_m = 0.0;
+    a.friction.stroke.enabled = true;
+    a.friction.stroke.pitch_mm = 15.0;
+    a.friction.stroke.rise_ratio = 0.8;
+    let fc = a.friction.coulomb_n;
+    let prog = "G90 G01 F2000\nX40.\nX30.\nX40.\nX30.\nX40.\nX30.\nX40.\nX0.\nX60.\nX0.\nM30\n";
+    let m = run(&p, prog);
+    let tr = &m.trace;
+    let fric = col(tr, "x.friction");
+    let cmd = col(tr, "x.cmd");
+    // Mid-stroke friction magnitude on each stroke.
+    let revs = axisbench::analysis::reversals(cmd);
+    let mut levels = vec![];
+    for w in revs.windows(2) {
+        let mid = (w[0].0 + w[1].0) / 2;
+        levels.push(fric[mid].abs());
+    }
+    // strokes: 40→30 (short after long) ... later 0→60 long ones
+    assert!(
+        levels[1] > levels[0] * 1.1,
+        "friction did not rise over short strokes: {levels:?}"
+    );
+    let peak = levels.iter().cloned().fold(0.0, f64::max);
+    assert!(peak <= fc * 1.8 + 1e-9, "rise exceeds 1 + rise_ratio");
+    let last = *levels.last().unwrap_or(&0.0);
+    assert!(
+        last < peak * 0.9,
+        "friction did not recover on long strokes: {levels:?}"
+    );
+}
+
+#[test]
+fn thermal_growth_grows_with_distance_from_the_fixed_bearing() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.thermal.enabled = true;
+    a.thermal.initial_c = 25.0; // a warm screw, 5 K above reference
+    a.thermal.ambient_c = 25.0;
+    a.thermal.motion_heat_w_s_per_m = 0.0;
+    a.thermal.friction_heat_share = 0.0;
+    let alpha = a.thermal.alpha_per_k;
+    let m = run(&p, "G90 G01 X100. F6000\nG04 P300\nX400.\nM30\n");
+    let tr = &m.trace;
+    let th = col(tr, "x.thermal");
+    let pos = col(tr, "x.pos");
+    for k in [at(tr, 1.2), tr.len() - 1] {
+        let expected = alpha * 5.0 * (pos[k] - th[k]);
+        assert!(
+            (th[k] - expected).abs() < 1e-9,
+            "elongation {} mm, expected {expected} mm",
+            th[k]
+        );
+    }
+    assert!(
+        th[tr.len() - 1] > 3.5 * th[at(tr, 1.2)],
+        "error does not grow with position"
+    );
+}
+
+#[test]
+fn screw_heats_from_friction_and_cools_to_ambient() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.thermal.enabled = true;
+    a.friction.enabled = true;
+    let m = run(&p, "G90 G01 F6000\nX400.\nX0.\nX400.\nX0.\nM30\n");
+    let temp = col(&m.trace, "temp.x_screw");
+    assert!(
+        temp[temp.len() - 1] > temp[0],
+        "moving with friction did not heat the screw"
+    );
+}
+
+#[test]
+fn crossbeam_sag_matches_the_beam_formula() {
+    let lp = axisbench::preset::load_embedded("vertical_lathe_crossbeam.ron").expect("preset");
+    let p = lp.preset.clone();
+    let mut m = axisbench::Machine::from_loaded(&lp).expect("machine");
+    m.run_steps(10);
+    let cb = &p.crossbeam;
+    let l = cb.span_mm * 1e-3;
+    let ei = cb.youngs_modulus_gpa * 1e9 * cb.area_moment_cm4 * 1e-8;
+    let x1 = m.axes[0].pos_m;
+    let x2 = m.axes[2].pos_m;
+    // Superposition of the two posts and the self-weight at post 1.
+    let point = |x: f64, a: f64, pw: f64| {
+        let (xx, aa) = if x <= a { (x, a) } else { (l - x, l - a) };
+        let b = l - aa;
+        pw * b * xx * (l * l - b * b - xx * xx) / (6.0 * ei * l)
+    };
+    let w = cb.self_weight_n_per_m;
+    let d1 = w * x1 * (l.powi(3) - 2.0 * l * x1 * x1 + x1.powi(3)) / (24.0 * ei)
+        + point(x1, x1, cb.posts[0].weight_n)
+        + point(x1, x2, cb.posts[1].weight_n);
+    let sag = m.axes[1].sag_m;
+    assert!(
+        (sag + d1).abs() < 1e-12,
+        "sag {sag} m, beam formula {}",
+        -d1
+    );
+    // Midspan load on a simply supported beam: P L³ / 48 EI.
+    let beam = axisbench::plant::Beam::new(
+        &axisbench::preset::Crossbeam {
+            self_weight_n_per_m: 0.0,
+            ..cb.clone()
+        },
+        |_| Some(0),
+    )
+    .expect("beam");
+    let mid = beam.deflection_m(l / 2.0, &[(l / 2.0, 1000.0)]);
+    assert!((mid - 1000.0 * l.powi(3) / (48.0 * ei)).abs() < 1e-15);
+}
+
+#[test]
+fn sag_is_largest_with_the_post_at_midspan() {
+    let lp = axisbench::preset::load_embedded("vertical_lathe_crossbeam.ron").expect("preset");
+    let mut m = axisbench::Machine::from_loaded(&lp).expect("machine");
+    m.set_recording(true);
+    m.run(600.0);
+    let tr = &m.trace;
+    let x = col(tr, "x.pos");
+    let sag = col(tr, "z.sag");
+    let k_mid = x
+        .iter()
+        .enumerate()
+        .min_by(|a, b| (a.1 - 1900.0).abs().total_cmp(&(b.1 - 1900.0).abs()))
+        .map(|(k, _)| k)
+        .unwrap_or(0);
+    assert!(
+        sag[k_mid] < sag[0],
+        "post near midspan should sag more than near the support"
+    );
+    // The Z servo cannot see the sag: the tool error equals it.
+    let err = col(tr, "z.err");
+    assert!((err[k_mid] + sag[k_mid]).abs() < 5e-3);
+}
+
+#[test]
+fn two_mass_axis_follows_and_settles() {
+    let mut p = plain();
+    p.axes[0].drive.coupling = Coupling::TwoMass {
+        stiffness_n_per_um: 150.0,
+        damping_n_s_per_m: 2.0e4,
+    };
+    let m = run(&p, "G90 G01 X50. F3000\nM30\n");
+    let err = *col(&m.trace, "x.err").last().unwrap_or(&f64::NAN);
+    assert!(err.abs() < 1e-4, "two-mass axis left {err} mm");
+}
+
+#[test]
+fn torque_limit_saturates_the_command() {
+    let mut p = plain();
+    p.axes[0].servo.torque_limit_nm = 2.0;
+    let m = run(&p, "G05P4\nU5.\nG04 P500\nM30\n");
+    let tq = col(&m.trace, "x.torque_cmd");
+    let peak = tq.iter().fold(0.0_f64, |a, &b| a.max(b.abs()));
+    assert!(
+        (peak - 2.0).abs() < 1e-12,
+        "torque command peaked at {peak} N·m with a 2 N·m limit"
+    );
+    let end = *col(&m.trace, "x.pos").last().unwrap_or(&0.0);
+    assert!(
+        (end - 5.0).abs() < 1e-3,
+        "did not recover from saturation: {end}"
+    );
+}
+
+#[test]
+fn encoder_quantization_puts_feedback_on_the_grid() {
+    let mut p = plain();
+    p.axes[0].encoder.quantize_motor = true;
+    p.axes[0].encoder.motor_counts_per_rev = 1000; // 10 µm per count on a 10 mm lead
+    let m = run(&p, "G90 G01 X0.1234 F100\nM30\n");
+    let ferr = col(&m.trace, "x.ferr");
+    let cmd = col(&m.trace, "x.cmd_comp");
+    let fb: Vec<f64> = cmd.iter().zip(ferr).map(|(c, e)| c - e).collect();
+    for v in fb {
+        let counts = v / 0.01;
+        assert!(
+            (counts - counts.round()).abs() < 1e-6,
+            "feedback {v} mm off the 10 µm grid"
+        );
+    }
+}
+
+#[test]
+fn lead_error_table_is_interpolated_and_held() {
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.lead_error.enabled = true;
+    a.lead_error.amplitude_um = 0.0;
+    a.lead_error.table = vec![(0.0, 0.0), (50.0, 4.0), (100.0, -2.0)];
+    let m = run(
+        &p,
+        "G90 G01 X25. F3000\nG04 P200\nX75.\nG04 P200\nX150.\nM30\n",
+    );
+    let tr = &m.trace;
+    let le = col(tr, "x.lead_err");
+    let pos = col(tr, "x.pos");
+    for k in (0..tr.len()).step_by(997) {
+        let x = pos[k] - le[k];
+        let want = if x <= 0.0 {
+            0.0
+        } else if x <= 50.0 {
+            0.004 * x / 50.0
+        } else if x <= 100.0 {
+            0.004 + (x - 50.0) / 50.0 * (-0.006)
+        } else {
+            -0.002
+        };
+        assert!(
+            (le[k] - want).abs() < 1e-9,
+            "lead error {} mm at x = {x}, expected {want}",
+            le[k]
+        );
+    }
+}
+
+#[test]
+fn stability_check_rejects_an_unstable_loop_and_accepts_the_presets() {
+    let mut p = plain();
+    assert!(axisbench::servo::check_stability(&p.axes[0], p.timing.t3_s).is_ok());
+    // kv·α·T3/M far above 4 − 2α: the discrete velocity loop with its current lag diverges.
+    p.axes[0].servo.kv_n_s_per_m = 5.0e8;
+    p.axes[0].servo.torque_limit_nm = 1e9;
+    let e = axisbench::servo::check_stability(&p.axes[0], p.timing.t3_s).expect_err("unstable");
+    assert!(e.contains("unstable"), "{e}");
+    // And the simulation really does diverge with those gains (the check is not just a rule).
+    let mut m = axisbench::Machine::new(
+        &plain(),
+        &[("t".into(), "G05P4\nU0.01\nG04 P50\nM30\n".into())],
+    )
+    .expect("machine");
+    m.axes[0].servo.retune(&p.axes[0]);
+    m.run(0.05);
+    let pos = col(&m.trace, "x.pos");
+    let diverged = pos.iter().any(|&x| !x.is_finite() || x.abs() > 1.0);
+    assert!(diverged, "an unstable loop stayed bounded");
+}

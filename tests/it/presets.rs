@@ -1,0 +1,144 @@
+//! Shipped presets, strict loading and every validation class.
+
+use axisbench::Machine;
+use axisbench::preset::{self, Preset, PresetError, SHIPPED_PRESETS};
+
+#[test]
+fn every_shipped_preset_validates_and_simulates() {
+    for name in SHIPPED_PRESETS {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("presets");
+        let on_disk = std::fs::read_to_string(dir.join(name)).expect("preset file");
+        assert_eq!(
+            Some(on_disk.as_str()),
+            preset::embedded(name),
+            "{name}: embedded copy differs"
+        );
+        let lp =
+            preset::load(&dir.join(name).display().to_string()).unwrap_or_else(|e| panic!("{e}"));
+        let mut m = Machine::from_loaded(&lp).unwrap_or_else(|e| panic!("{name}: {e}"));
+        m.run(60.0);
+        let tr = &m.trace;
+        assert!(tr.len() > 100, "{name}: only {} samples", tr.len());
+        for s in &tr.signals {
+            assert!(
+                s.data.iter().all(|v| v.is_finite()),
+                "{name}: {} has non-finite samples",
+                s.name
+            );
+        }
+        for a in &m.axes {
+            let e = (a.cmd_raw_m - a.pos_m).abs();
+            assert!(
+                e < 5e-4,
+                "{name}: axis {} ended {e} m off its command",
+                a.name
+            );
+        }
+    }
+}
+
+#[test]
+fn presets_round_trip_through_ron() {
+    for name in SHIPPED_PRESETS {
+        let p = preset::load_embedded(name).expect("loads").preset;
+        let text = p.to_ron().expect("serializes");
+        let back = Preset::from_ron(&text, name).expect("reads back");
+        assert_eq!(p, back, "{name}");
+    }
+}
+
+fn default_text() -> String {
+    preset::embedded("default.ron")
+        .expect("embedded")
+        .to_owned()
+}
+
+fn invalid(text: &str) -> Vec<String> {
+    match Preset::from_ron(text, "bad.ron") {
+        Err(PresetError::Invalid { errors, .. }) => errors.iter().map(|e| e.to_string()).collect(),
+        Err(e) => vec![e.to_string()],
+        Ok(_) => panic!("accepted an invalid preset"),
+    }
+}
+
+#[test]
+fn nan_and_negative_physical_values_are_rejected() {
+    let e = invalid(&default_text().replace("table_mass_kg: 300.0", "table_mass_kg: NaN"));
+    assert!(
+        e.iter()
+            .any(|m| m.contains("axes[x].drive.table_mass_kg") && m.contains("finite")),
+        "{e:?}"
+    );
+    let e = invalid(&default_text().replace("coulomb_n: 250.0", "coulomb_n: -5.0"));
+    assert!(
+        e.iter()
+            .any(|m| m.contains("axes[x].friction.coulomb_n") && m.contains("negative")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn periods_must_be_integer_multiples() {
+    let e = invalid(&default_text().replace("t2_s: 0.001", "t2_s: 0.0007"));
+    assert!(e.iter().any(|m| m.starts_with("timing.t1_s")), "{e:?}");
+    assert!(e.iter().any(|m| m.starts_with("timing.t2_s")), "{e:?}");
+}
+
+#[test]
+fn unstable_gains_are_rejected_by_their_poles() {
+    let e = invalid(&default_text().replace("kv_n_s_per_m: 560000.0", "kv_n_s_per_m: 500000000.0"));
+    assert!(
+        e.iter()
+            .any(|m| m.contains("axes[x].servo") && m.contains("pole")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn tables_must_increase_strictly() {
+    let text = default_text().replace(
+        "cumulative_um_per_m: 0.0)",
+        "cumulative_um_per_m: 0.0, table: [(0.0, 1.0), (50.0, 2.0), (50.0, 3.0)])",
+    );
+    let e = invalid(&text);
+    assert!(
+        e.iter()
+            .any(|m| m.contains("lead_error.table[2]") && m.contains("strictly increasing")),
+        "{e:?}"
+    );
+}
+
+#[test]
+fn unknown_fields_syntax_and_version_are_errors() {
+    let e = invalid(&default_text().replace("lead_mm: 10.0", "lead_mm: 10.0, pitch_mm: 3.0"));
+    assert!(
+        e.iter()
+            .any(|m| m.contains("bad.ron:") && m.contains("pitch_mm")),
+        "{e:?}"
+    );
+    let e = invalid(&default_text().replace("version: 1", "version: 7"));
+    assert!(e.iter().any(|m| m.contains("version 7")), "{e:?}");
+    let e = invalid(&default_text().replace("name: \"x\",", "name: \"x\""));
+    assert!(e.iter().any(|m| m.starts_with("bad.ron:")), "{e:?}");
+}
+
+#[test]
+fn overrides_set_nested_fields_by_axis_name() {
+    let p = preset::load_embedded("default.ron").expect("loads").preset;
+    let q = p
+        .with_override("axes.x.backlash.width_um", "12.5")
+        .expect("override");
+    assert_eq!(q.axes[0].backlash.width_um, 12.5);
+    let q = p
+        .with_override("nc.accdec.kind", "bell")
+        .expect("enum override");
+    assert_eq!(q.nc.accdec.kind, axisbench::preset::AccDecKind::Bell);
+    let e = p
+        .with_override("axes.x.backlash.widht_um", "1")
+        .expect_err("typo");
+    assert!(e.to_string().contains("widht_um"), "{e}");
+    let e = p
+        .with_override("axes.x.drive.table_mass_kg", "-1")
+        .expect_err("invalid");
+    assert!(e.to_string().contains("table_mass_kg"), "{e}");
+}
