@@ -306,41 +306,55 @@ impl Channel {
                     return; // hold while the filter drains
                 }
             }
-            if self.ended {
+            if let Some(Op::Move {
+                line,
+                end_m,
+                feed_mps,
+                path,
+                length_m,
+            }) = self.next_op(self.t1_s)
+            {
+                self.line = line;
+                let n_ticks = (length_m / (feed_mps * self.t1_s)).ceil().max(1.0) as u64;
+                self.seg = Some(Segment {
+                    start: self.prog_pos.clone(),
+                    end: end_m,
+                    path,
+                    n_ticks,
+                    k: 0,
+                });
+            } else if self.ended {
                 return;
             }
-            let Some(op) = self.ops.get(self.pc).cloned() else {
+        }
+    }
+
+    /// Fetches the next operation of the program. Dwell, mode switch and end are taken
+    /// here (a dwell counts in ticks of `tick_s`); a move is returned to the caller.
+    fn next_op(&mut self, tick_s: f64) -> Option<Op> {
+        if self.ended {
+            return None;
+        }
+        let Some(op) = self.ops.get(self.pc).cloned() else {
+            self.ended = true;
+            return None;
+        };
+        self.pc += 1;
+        match op {
+            Op::Move { .. } => Some(op),
+            Op::Dwell { line, t_s } => {
+                self.line = line;
+                self.dwell_ticks = (t_s / tick_s).round() as u64;
+                None
+            }
+            Op::Switch { line, mode } => {
+                self.line = line;
+                self.pending = Some(mode);
+                None
+            }
+            Op::End => {
                 self.ended = true;
-                return;
-            };
-            self.pc += 1;
-            match op {
-                Op::Move {
-                    line,
-                    end_m,
-                    feed_mps,
-                    path,
-                    length_m,
-                } => {
-                    self.line = line;
-                    let n_ticks = (length_m / (feed_mps * self.t1_s)).ceil().max(1.0) as u64;
-                    self.seg = Some(Segment {
-                        start: self.prog_pos.clone(),
-                        end: end_m,
-                        path,
-                        n_ticks,
-                        k: 0,
-                    });
-                }
-                Op::Dwell { line, t_s } => {
-                    self.line = line;
-                    self.dwell_ticks = (t_s / self.t1_s).round() as u64;
-                }
-                Op::Switch { line, mode } => {
-                    self.line = line;
-                    self.pending = Some(mode);
-                }
-                Op::End => self.ended = true,
+                None
             }
         }
     }
@@ -364,29 +378,12 @@ impl Channel {
                 }
                 return;
             }
-            if self.ended {
+            if let Some(Op::Move { line, end_m, .. }) = self.next_op(self.t3_s) {
+                self.line = line;
+                self.prog_pos = end_m;
                 return;
-            }
-            let Some(op) = self.ops.get(self.pc).cloned() else {
-                self.ended = true;
+            } else if self.ended {
                 return;
-            };
-            self.pc += 1;
-            match op {
-                Op::Move { line, end_m, .. } => {
-                    self.line = line;
-                    self.prog_pos = end_m;
-                    return;
-                }
-                Op::Dwell { line, t_s } => {
-                    self.line = line;
-                    self.dwell_ticks = (t_s / self.t3_s).round() as u64;
-                }
-                Op::Switch { line, mode } => {
-                    self.line = line;
-                    self.pending = Some(mode);
-                }
-                Op::End => self.ended = true,
             }
         }
     }
