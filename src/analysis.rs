@@ -124,10 +124,40 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
             a.max_err_mm * 1e3,
             a.rms_err_mm * 1e3
         );
+        if let Some(th) = trace.values(&format!("{}.thermal", a.axis)) {
+            if th.iter().any(|&x| x != 0.0) {
+                let comp = trace.values(&format!("{}.thermal_comp", a.axis));
+                let resid = th
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &x)| x + comp.map_or(0.0, |c| c[k]));
+                let (max, rms) = max_rms(resid);
+                s += &format!(
+                    "  thermal residual (growth − correction): max {:.3} µm, rms {:.3} µm\n",
+                    max * 1e3,
+                    rms * 1e3
+                );
+            }
+        }
         if a.reversals.is_empty() {
             s += "  no reversals\n";
+        } else if a.reversals.len() > 12 {
+            let (mut up, mut dn) = (0.0_f64, 0.0_f64);
+            for r in &a.reversals {
+                if r.direction.starts_with('+') {
+                    dn = dn.max(r.peak_err_mm);
+                } else {
+                    up = up.max(r.peak_err_mm);
+                }
+            }
+            s += &format!(
+                "  {} reversals: largest peak error +→− {:.4} µm, −→+ {:.4} µm\n",
+                a.reversals.len(),
+                dn * 1e3,
+                up * 1e3
+            );
         }
-        for r in &a.reversals {
+        for r in a.reversals.iter().filter(|_| a.reversals.len() <= 12) {
             s += &format!(
                 "  reversal {} at t = {:.4} s, {} = {:.4} mm: peak error {:.4} µm\n",
                 r.direction,

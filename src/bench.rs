@@ -15,13 +15,13 @@ pub fn full_model_preset(n_axes: usize) -> Result<Preset, MachineError> {
         stiffness_n_per_um: 150.0,
         damping_n_s_per_m: 2.0e4,
     };
-    a.backlash.enabled = true;
+    a.lost_motion.enabled = true;
     a.friction.enabled = true;
     a.friction.stribeck.enabled = true;
     a.friction.stroke.enabled = true;
     a.gravity.enabled = true;
     a.gravity.incline_deg = 30.0;
-    a.thermal.enabled = true;
+    a.screw_thermal.enabled = true;
     a.lead_error.enabled = true;
     a.encoder.quantize_motor = true;
     a.encoder.quantize_scale = true;

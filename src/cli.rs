@@ -7,7 +7,32 @@ use clap::{Parser, Subcommand};
 
 use axisbench::Machine;
 use axisbench::analysis;
+use axisbench::comp::cross::CrossTable;
+use axisbench::comp::measure;
+use axisbench::comp::quadrant::Quadrant;
+use axisbench::comp::thermal::Thermal;
 use axisbench::preset::{self, LoadedPreset};
+
+/// println! that ends the program quietly when stdout is closed (`| head`), instead of
+/// panicking on a broken pipe.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if writeln!(std::io::stdout(), $($t)*).is_err() {
+            std::process::exit(0);
+        }
+    }};
+}
+
+/// print! with the same broken-pipe handling as `say!`.
+macro_rules! say_raw {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if write!(std::io::stdout(), $($t)*).is_err() {
+            std::process::exit(0);
+        }
+    }};
+}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -36,9 +61,26 @@ pub enum Command {
         /// Trace CSV to write.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Override a preset field: --set axes.x.backlash.width_um=12 (repeatable).
+        /// Override a preset field: --set axes.z.backlash.minus_to_plus.mode=lump (repeatable).
         #[arg(long = "set", value_name = "PATH=VALUE")]
         sets: Vec<String>,
+        /// Also run with every compensation off and print both summaries.
+        #[arg(long)]
+        compare: bool,
+        /// Measure a sag table of N points for every tool post of the crossbeam and install
+        /// them as the cross tables before running.
+        #[arg(long, value_name = "N")]
+        measure_cross: Option<usize>,
+    },
+    /// Measuring cycles on the simulated machine, as on a real one.
+    Measure {
+        #[command(subcommand)]
+        what: MeasureCmd,
+    },
+    /// Thermal correction calibration (seed 002) on simulated measurements.
+    Calibrate {
+        #[command(subcommand)]
+        step: CalibrateCmd,
     },
     /// Check preset files; exits non-zero listing every error.
     Validate {
@@ -53,6 +95,75 @@ pub enum Command {
     },
 }
 
+#[derive(Subcommand, Debug)]
+pub enum MeasureCmd {
+    /// Reversal test: lost motion Q of an axis (compensation off).
+    Backlash {
+        #[arg(long)]
+        preset: String,
+        #[arg(long)]
+        axis: String,
+    },
+    /// Sag table: move the base axis across the beam and read the Z error at N points.
+    Sag {
+        #[arg(long)]
+        preset: String,
+        /// Base axis (moves along the beam).
+        #[arg(long)]
+        base: String,
+        /// Compensated axis (the tool post's Z).
+        #[arg(long)]
+        axis: String,
+        #[arg(long, default_value_t = 9)]
+        points: usize,
+        /// Start of the table, mm (default 0).
+        #[arg(long)]
+        from: Option<f64>,
+        /// End of the table, mm (default the beam span).
+        #[arg(long)]
+        to: Option<f64>,
+    },
+    /// Real thermal displacement at the thermal measurement point at intervals.
+    Thermal {
+        #[arg(long)]
+        preset: String,
+        #[arg(long)]
+        axis: String,
+        #[arg(long, default_value_t = 300.0)]
+        interval: f64,
+    },
+}
+
+#[derive(Subcommand, Debug)]
+pub enum CalibrateCmd {
+    /// Step 1: fit k over several programs (each run from cold, E = 1, measuring at intervals).
+    Step1 {
+        #[arg(long)]
+        preset: String,
+        #[arg(long)]
+        axis: String,
+        /// Program files (repeatable); default: the preset's own program.
+        #[arg(long = "program")]
+        programs: Vec<PathBuf>,
+        #[arg(long, default_value_t = 60.0)]
+        interval: f64,
+        /// Override a preset field (repeatable).
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
+    },
+    /// Step 2: a from one measurement at time --at with the preset's k.
+    Step2 {
+        #[arg(long)]
+        preset: String,
+        #[arg(long)]
+        axis: String,
+        #[arg(long)]
+        at: f64,
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
+    },
+}
+
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         None => open_gui(),
@@ -62,7 +173,11 @@ pub fn run(cli: Cli) -> Result<()> {
             duration,
             out,
             sets,
-        }) => simulate(&preset, program, duration, out, &sets),
+            compare,
+            measure_cross,
+        }) => simulate(&preset, program, duration, out, &sets, compare, measure_cross),
+        Some(Command::Measure { what }) => measure(what),
+        Some(Command::Calibrate { step }) => calibrate(step),
         Some(Command::Validate { presets }) => validate(&presets),
         Some(Command::Bench { steps }) => bench(steps),
     }
@@ -98,12 +213,28 @@ pub fn load_with_sets(path: &str, sets: &[String]) -> Result<LoadedPreset> {
     Ok(lp)
 }
 
+fn program_texts(lp: &LoadedPreset, program: Option<&PathBuf>) -> Result<Vec<(String, String)>> {
+    let mut texts = Vec::new();
+    for (i, name) in lp.preset.scenario.programs.iter().enumerate() {
+        match (program, i) {
+            (Some(p), 0) => texts.push((
+                p.display().to_string(),
+                std::fs::read_to_string(p).with_context(|| format!("{}: cannot read program", p.display()))?,
+            )),
+            _ => texts.push((name.clone(), lp.program_text(name)?)),
+        }
+    }
+    Ok(texts)
+}
+
 fn simulate(
     preset_path: &str,
     program: Option<PathBuf>,
     duration: Option<f64>,
     out: Option<PathBuf>,
     sets: &[String],
+    compare: bool,
+    measure_cross: Option<usize>,
 ) -> Result<()> {
     let mut lp = load_with_sets(preset_path, sets)?;
     if let Some(d) = duration {
@@ -112,29 +243,145 @@ fn simulate(
         }
         lp.preset.scenario.duration_s = Some(d);
     }
-    let mut texts = Vec::new();
-    for (i, name) in lp.preset.scenario.programs.iter().enumerate() {
-        match (&program, i) {
-            (Some(p), 0) => texts.push((
-                p.display().to_string(),
-                std::fs::read_to_string(p)
-                    .with_context(|| format!("{}: cannot read program", p.display()))?,
-            )),
-            _ => texts.push((name.clone(), lp.program_text(name)?)),
+    if let Some(n) = measure_cross {
+        let cb = lp.preset.crossbeam.clone();
+        if !cb.enabled {
+            bail!("--measure-cross: {} has no crossbeam", lp.origin);
+        }
+        let mut tables = Vec::new();
+        for post in &cb.posts {
+            let points = measure::sag_table(&lp.preset, &post.x_axis, &post.z_axis, n, 0.0, cb.span_mm)?;
+            say!("measured sag table for {} over {} ({n} points):", post.z_axis, post.x_axis);
+            for (x, dz) in &points {
+                say!("  x = {x:9.3} mm  ΔZ = {dz:8.3} µm");
+            }
+            tables.push(CrossTable {
+                enabled: true,
+                base_axis: post.x_axis.clone(),
+                comp_axis: post.z_axis.clone(),
+                points,
+            });
+        }
+        lp.preset.cross = tables;
+    }
+    let texts = program_texts(&lp, program.as_ref())?;
+    let runs: Vec<(&str, axisbench::Preset)> = if compare {
+        vec![("compensated", lp.preset.clone()), ("uncompensated", measure::uncompensated_scenario(&lp.preset))]
+    } else {
+        vec![("", lp.preset.clone())]
+    };
+    for (label, p) in runs {
+        let mut m = Machine::new(&p, &texts)?;
+        m.trace.meta.push(("preset_file".into(), lp.origin.clone()));
+        let limit_s = duration.unwrap_or(4.0 * 3600.0);
+        m.run(limit_s);
+        if !m.done() {
+            eprintln!("warning: stopped after {limit_s} s of machine time before the program ended");
+        }
+        if !label.is_empty() {
+            say!("== {label}");
+        }
+        let sums = analysis::summarize(&m.trace);
+        say_raw!("{}", analysis::format_summary(&m.trace, &sums));
+        say_raw!("{}", comp_report(&m));
+        if let (Some(out), true) = (&out, label != "uncompensated") {
+            m.trace.write_csv(out)?;
+            say!("trace written to {}", out.display());
         }
     }
-    let mut m = Machine::new(&lp.preset, &texts)?;
-    m.trace.meta.push(("preset_file".into(), lp.origin.clone()));
-    let limit_s = duration.unwrap_or(4.0 * 3600.0);
-    m.run(limit_s);
-    if !m.done() {
-        eprintln!("warning: stopped after {limit_s} s of machine time before the program ended");
+    Ok(())
+}
+
+/// What the compensations did, in one line each.
+fn comp_report(m: &Machine) -> String {
+    let mut s = String::new();
+    for t in m.comps().find::<Thermal>() {
+        s += &format!(
+            "thermal correction: {} measurements, a = {:.4}, E = {:.4}, F = {:.3} µm\n",
+            t.measurements,
+            t.p.a,
+            t.e,
+            t.f_m * 1e6
+        );
     }
-    let sums = analysis::summarize(&m.trace);
-    print!("{}", analysis::format_summary(&m.trace, &sums));
-    if let Some(out) = out {
-        m.trace.write_csv(&out)?;
-        println!("trace written to {}", out.display());
+    for (q, a) in m.comps().find::<Quadrant>().zip(m.axes.iter()) {
+        s += &format!(
+            "quadrant {}: {} reversals, last PA = {:.3} mm, N = {}, M = {:.4}, T = {:.2} ms\n",
+            a.name,
+            q.reversals,
+            if q.pa_m.is_finite() { q.pa_m * 1e3 } else { 0.0 },
+            q.n,
+            q.m,
+            q.t_s * 1e3
+        );
+    }
+    s
+}
+
+fn measure(what: MeasureCmd) -> Result<()> {
+    match what {
+        MeasureCmd::Backlash { preset, axis } => {
+            let lp = preset::load(&preset)?;
+            let q = measure::backlash_um(&lp.preset, &axis)?;
+            say!("backlash (lost motion) of {axis}: Q = {q:.3} µm");
+        }
+        MeasureCmd::Sag {
+            preset,
+            base,
+            axis,
+            points,
+            from,
+            to,
+        } => {
+            let lp = preset::load(&preset)?;
+            let span = lp.preset.crossbeam.span_mm;
+            let table = measure::sag_table(&lp.preset, &base, &axis, points, from.unwrap_or(0.0), to.unwrap_or(span))?;
+            say!("sag table for {axis} over {base} (x mm, correction µm):");
+            for (x, dz) in table {
+                say!("  ({x:.3}, {dz:.3}),");
+            }
+        }
+        MeasureCmd::Thermal { preset, axis, interval } => {
+            let lp = preset::load(&preset)?;
+            let texts = program_texts(&lp, None)?;
+            for (t, d) in measure::thermal_series(&lp.preset, &texts, &axis, interval)? {
+                say!("t = {t:8.1} s  D = {d:8.3} µm");
+            }
+        }
+    }
+    Ok(())
+}
+
+fn calibrate(step: CalibrateCmd) -> Result<()> {
+    match step {
+        CalibrateCmd::Step1 {
+            preset,
+            axis,
+            programs,
+            interval,
+            sets,
+        } => {
+            let lp = load_with_sets(&preset, &sets)?;
+            let runs = if programs.is_empty() {
+                vec![program_texts(&lp, None)?]
+            } else {
+                programs
+                    .iter()
+                    .map(|p| program_texts(&lp, Some(p)))
+                    .collect::<Result<Vec<_>>>()?
+            };
+            let fit = measure::thermal_step1(&lp.preset, &axis, &runs, interval)?;
+            for (j, (a, k, n)) in fit.fits.iter().enumerate() {
+                say!("program {}: r = {a:.4} + {k:.6}·|F|/µm over {n} points", j + 1);
+            }
+            say!("k = {:.6} per µm (mean of {} programs)", fit.k_per_um, fit.fits.len());
+        }
+        CalibrateCmd::Step2 { preset, axis, at, sets } => {
+            let lp = load_with_sets(&preset, &sets)?;
+            let texts = program_texts(&lp, None)?;
+            let a = measure::thermal_step2(&lp.preset, &axis, &texts, at)?;
+            say!("a = {a:.4} (measured at t = {at} s, k = {})", lp.preset.axes.iter().find(|x| x.name == axis).map_or(0.0, |x| x.thermal.k_per_um));
+        }
     }
     Ok(())
 }
@@ -146,7 +393,7 @@ fn validate(paths: &[String]) -> Result<()> {
             Machine::from_loaded(&lp)?;
             Ok(())
         }) {
-            Ok(()) => println!("{p}: ok"),
+            Ok(()) => say!("{p}: ok"),
             Err(e) => {
                 bad += 1;
                 eprintln!("{e:#}");
@@ -162,17 +409,17 @@ fn validate(paths: &[String]) -> Result<()> {
 fn bench(steps: u64) -> Result<()> {
     for n in [1, 3] {
         let f = axisbench::bench::run(n, steps, false)?;
-        println!(
+        say!(
             "axes={} recording=off steps={} axis_steps_per_s={:.0}",
             f.n_axes, f.steps, f.axis_steps_per_s
         );
     }
     let f = axisbench::bench::run(1, steps / 4, true)?;
-    println!(
+    say!(
         "axes=1 recording=on steps={} axis_steps_per_s={:.0}",
         f.steps, f.axis_steps_per_s
     );
     let f = axisbench::bench::run(1, steps, false)?;
-    println!("axis_steps_per_s={:.0}", f.axis_steps_per_s);
+    say!("axis_steps_per_s={:.0}", f.axis_steps_per_s);
     Ok(())
 }

@@ -44,6 +44,10 @@ pub struct AxisRt {
     buf_comp: Vec<f64>,
     prev_raw_m: f64,
     prev_comp_m: f64,
+    /// Velocity of the previous T2 command segment, for the acceleration feed-forward.
+    seg_vel_mps: f64,
+    /// Commanded acceleration over the current T2 segment.
+    pub acc_cmd_mps2: f64,
     /// Command of this T3 before compensation (what the program asked for), m.
     pub cmd_raw_m: f64,
     /// Command from the NC after the position compensations, m.
@@ -54,8 +58,12 @@ pub struct AxisRt {
     pub sag_m: f64,
     /// True tool position: plant position plus sag, m.
     pub pos_m: f64,
-    pub servo_add: ServoCompOut,
+        pub servo_add: ServoCompOut,
     post_z: bool,
+    /// Plant output and true position at the start of the latest T3 (what the trace row
+    /// for that instant shows, next to the command and feedback the servo used).
+    sample_out: crate::plant::PlantOut,
+    sample_pos_m: f64,
 }
 
 impl AxisRt {
@@ -231,13 +239,17 @@ impl Machine {
                 buf_comp: vec![x0; n23 as usize],
                 prev_raw_m: x0,
                 prev_comp_m: x0,
+                seg_vel_mps: 0.0,
+                acc_cmd_mps2: 0.0,
                 cmd_raw_m: x0,
                 cmd_nc_m: x0,
                 cmd_m: x0,
                 sag_m: 0.0,
                 pos_m: pos,
-                servo_add: ServoCompOut::default(),
+                                servo_add: ServoCompOut::default(),
                 post_z: false,
+                sample_out: crate::plant::PlantOut::default(),
+                sample_pos_m: pos,
             });
         }
         let beam = Beam::new(&preset.crossbeam, |n| axes.iter().position(|a| a.name == n));
@@ -284,6 +296,8 @@ impl Machine {
             m.comp_prev[i] = a.prev_raw_m;
         }
         m.update_sag();
+        let comps = crate::comp::build(preset);
+        m.set_comps(comps);
         m.set_recording(true);
         Ok(m)
     }
@@ -442,9 +456,14 @@ impl Machine {
                 motor_pos_m: a.plant.out.motor_enc_m,
                 vel_add_mps: add.vel_mps,
                 force_ff_n: add.torque_nm * a.f_per_t,
+                acc_cmd_mps2: a.acc_cmd_mps2,
             };
-            let force = a.servo.step(&input);
+                        let force = a.servo.step(&input);
+            a.sample_out = a.plant.out;
+            a.sample_pos_m = a.pos_m;
             a.plant.step(force);
+            // Friction is the force over the step just taken.
+            a.sample_out.friction_n = a.plant.out.friction_n;
             a.pos_m = a.plant.out.pos_m + a.sag_m;
         }
         if self.beam.is_some() {
@@ -516,6 +535,12 @@ impl Machine {
             };
             for c in self.comps.position.iter_mut() {
                 c.step(&ctx, &mut self.comp_out);
+                // A measuring cycle (touch probe on the reference point) reads the real
+                // displacement there; only the plant knows it.
+                if let Some((axis, x_m)) = c.measurement_request() {
+                    let real = self.axes[axis].plant.thermal.elongation_m(x_m);
+                    c.measured(ctx.t_s, real);
+                }
             }
             for (i, a) in self.axes.iter_mut().enumerate() {
                 let raw = self.comp_cmd[i];
@@ -535,7 +560,13 @@ impl Machine {
             }
             self.comp_prev.clone_from(&self.comp_cmd);
         }
+        let t2_s = self.t3_s * n23 as f64;
         for a in &mut self.axes {
+            // One acceleration per T2 segment: the command is (piecewise) linear inside it,
+            // so a per-T3 second difference would be a train of spikes.
+            let v = (a.buf_comp[n23 - 1] - a.prev_comp_m) / t2_s;
+            a.acc_cmd_mps2 = (v - a.seg_vel_mps) / t2_s;
+            a.seg_vel_mps = v;
             a.prev_raw_m = a.buf_raw[n23 - 1];
             a.prev_comp_m = a.buf_comp[n23 - 1];
         }
@@ -543,20 +574,21 @@ impl Machine {
 
     fn record(&mut self) {
         let Some(rec) = &mut self.rec else { return };
-        if !self.k.is_multiple_of(rec.every as u64) {
+        if !(self.k - 1).is_multiple_of(rec.every as u64) {
             return;
         }
         let tr = &mut self.trace;
-        tr.signals[0].data.push(self.k as f64 * self.t3_s);
+        // The row is the instant t_k at the start of the step just taken.
+        tr.signals[0].data.push((self.k - 1) as f64 * self.t3_s);
         for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
-            let o = &a.plant.out;
+            let o = &a.sample_out;
             let vals = [
                 a.cmd_raw_m * 1e3,
                 a.cmd_m * 1e3,
                 (a.cmd_m - a.cmd_raw_m) * 1e3,
                 o.motor_pos_m * 1e3,
-                a.pos_m * 1e3,
-                (a.cmd_raw_m - a.pos_m) * 1e3,
+                                a.sample_pos_m * 1e3,
+                (a.cmd_raw_m - a.sample_pos_m) * 1e3,
                 a.servo.ferr_m * 1e3,
                 o.vel_mps * 1e3,
                 a.torque_cmd_nm(),
@@ -566,7 +598,7 @@ impl Machine {
                 o.gap_m * 1e3,
                 o.thermal_m * 1e3,
                 o.lead_err_m * 1e3,
-                a.sag_m * 1e3,
+                                (a.sample_pos_m - o.pos_m) * 1e3,
             ];
             for (i, v) in vals.into_iter().enumerate() {
                 tr.signals[base + i].data.push(v);

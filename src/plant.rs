@@ -183,7 +183,7 @@ pub struct ScrewThermal {
 
 impl ScrewThermal {
     fn from_params(a: &AxisParams) -> ScrewThermal {
-        let t = &a.thermal;
+        let t = &a.screw_thermal;
         ScrewThermal {
             enabled: t.enabled,
             alpha_per_k: t.alpha_per_k,
@@ -352,8 +352,8 @@ impl AxisPlant {
         let (m_m, m_t) = masses(a);
         self.m_m = m_m;
         self.m_t = m_t;
-        self.half_gap_m = if a.backlash.enabled {
-            0.5 * a.backlash.width_um * 1e-6
+        self.half_gap_m = if a.lost_motion.enabled {
+            0.5 * a.lost_motion.width_um * 1e-6
         } else {
             0.0
         };

@@ -90,6 +90,9 @@ pub struct Preset {
     pub axes: Vec<AxisParams>,
     #[serde(default)]
     pub crossbeam: Crossbeam,
+    /// Cross (sag) compensation tables (seed 004).
+    #[serde(default)]
+    pub cross: Vec<crate::comp::cross::CrossTable>,
     pub scenario: Scenario,
 }
 
@@ -178,10 +181,19 @@ pub struct AxisParams {
     pub servo: ServoParams,
     pub encoder: Encoder,
     pub friction: Friction,
-    pub backlash: Backlash,
+    pub lost_motion: LostMotion,
     pub gravity: Gravity,
-    pub thermal: Thermal,
+    pub screw_thermal: ScrewThermal,
     pub lead_error: LeadError,
+    /// Backlash compensation (seed 000).
+    #[serde(default)]
+    pub backlash: crate::comp::backlash::BacklashParams,
+    /// Quadrant (reversal) compensation adapting to short strokes (seed 003).
+    #[serde(default)]
+    pub quadrant: crate::comp::quadrant::QuadrantParams,
+    /// Thermal displacement correction with automatic re-measurement (seed 002).
+    #[serde(default)]
+    pub thermal: crate::comp::thermal::ThermalParams,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -229,6 +241,10 @@ pub struct ServoParams {
     /// Velocity feed-forward ratio, 0…1.
     #[serde(default)]
     pub vff: f64,
+    /// Acceleration (torque) feed-forward ratio, 0…1: adds aff·M·a of the commanded
+    /// acceleration, M the motor's reflected mass plus the table.
+    #[serde(default)]
+    pub aff: f64,
     /// Current-loop lag time constant. 0 = ideal current loop.
     #[serde(default)]
     pub current_lag_s: f64,
@@ -284,7 +300,7 @@ pub struct StrokeFriction {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Backlash {
+pub struct LostMotion {
     pub enabled: bool,
     /// Total width b of the dead zone between motor and table.
     pub width_um: f64,
@@ -306,7 +322,7 @@ pub struct Gravity {
 /// First-order screw temperature heated by friction power and motion, cooled to ambient.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Thermal {
+pub struct ScrewThermal {
     pub enabled: bool,
     pub alpha_per_k: f64,
     pub heat_capacity_j_per_k: f64,
@@ -608,7 +624,7 @@ impl Preset {
             v.pos(&format!("{p}.drive.lead_mm"), d.lead_mm);
             v.pos(&format!("{p}.drive.table_mass_kg"), d.table_mass_kg);
             let needs_motor_mass =
-                a.backlash.enabled || matches!(d.coupling, Coupling::TwoMass { .. });
+                a.lost_motion.enabled || matches!(d.coupling, Coupling::TwoMass { .. });
             if needs_motor_mass && d.motor_inertia_kgm2 <= 0.0 {
                 v.err(
                     &format!("{p}.drive.motor_inertia_kgm2"),
@@ -635,6 +651,7 @@ impl Preset {
             v.pos(&format!("{p}.servo.kv_n_s_per_m"), s.kv_n_s_per_m);
             v.nonneg(&format!("{p}.servo.ki_per_s"), s.ki_per_s);
             v.range(&format!("{p}.servo.vff"), s.vff, 0.0, 1.0);
+            v.range(&format!("{p}.servo.aff"), s.aff, 0.0, 1.0);
             v.nonneg(&format!("{p}.servo.current_lag_s"), s.current_lag_s);
             v.pos(&format!("{p}.servo.torque_limit_nm"), s.torque_limit_nm);
             if a.encoder.motor_counts_per_rev == 0 {
@@ -683,7 +700,7 @@ impl Preset {
                 &format!("{p}.friction.stroke.recovery_mm"),
                 f.stroke.recovery_mm,
             );
-            v.nonneg(&format!("{p}.backlash.width_um"), a.backlash.width_um);
+            v.nonneg(&format!("{p}.lost_motion.width_um"), a.lost_motion.width_um);
             v.range(
                 &format!("{p}.gravity.incline_deg"),
                 a.gravity.incline_deg,
@@ -695,27 +712,27 @@ impl Preset {
                 a.gravity.moving_mass_kg,
             );
             v.finite(&format!("{p}.gravity.offset_n"), a.gravity.offset_n);
-            let th = &a.thermal;
-            v.nonneg(&format!("{p}.thermal.alpha_per_k"), th.alpha_per_k);
+            let th = &a.screw_thermal;
+            v.nonneg(&format!("{p}.screw_thermal.alpha_per_k"), th.alpha_per_k);
             v.pos(
-                &format!("{p}.thermal.heat_capacity_j_per_k"),
+                &format!("{p}.screw_thermal.heat_capacity_j_per_k"),
                 th.heat_capacity_j_per_k,
             );
-            v.nonneg(&format!("{p}.thermal.loss_w_per_k"), th.loss_w_per_k);
+            v.nonneg(&format!("{p}.screw_thermal.loss_w_per_k"), th.loss_w_per_k);
             v.range(
-                &format!("{p}.thermal.friction_heat_share"),
+                &format!("{p}.screw_thermal.friction_heat_share"),
                 th.friction_heat_share,
                 0.0,
                 1.0,
             );
             v.nonneg(
-                &format!("{p}.thermal.motion_heat_w_s_per_m"),
+                &format!("{p}.screw_thermal.motion_heat_w_s_per_m"),
                 th.motion_heat_w_s_per_m,
             );
-            v.temp(&format!("{p}.thermal.ambient_c"), th.ambient_c);
-            v.temp(&format!("{p}.thermal.initial_c"), th.initial_c);
-            v.temp(&format!("{p}.thermal.reference_c"), th.reference_c);
-            v.finite(&format!("{p}.thermal.fixed_end_mm"), th.fixed_end_mm);
+            v.temp(&format!("{p}.screw_thermal.ambient_c"), th.ambient_c);
+            v.temp(&format!("{p}.screw_thermal.initial_c"), th.initial_c);
+            v.temp(&format!("{p}.screw_thermal.reference_c"), th.reference_c);
+            v.finite(&format!("{p}.screw_thermal.fixed_end_mm"), th.fixed_end_mm);
             v.nonneg(
                 &format!("{p}.lead_error.amplitude_um"),
                 a.lead_error.amplitude_um,
@@ -730,6 +747,31 @@ impl Preset {
                 crate::table::check(&format!("{p}.lead_error.table"), &a.lead_error.table, 0)
             {
                 v.err(&path, reason);
+            }
+        }
+        for a in &self.axes {
+            let p = format!("axes[{}]", a.name);
+            for (sub, reason) in a.backlash.check() {
+                v.err(&format!("{p}.backlash.{sub}"), reason);
+            }
+            for (sub, reason) in a.quadrant.check() {
+                v.err(&format!("{p}.quadrant.{sub}"), reason);
+            }
+            for (sub, reason) in a.thermal.check() {
+                v.err(&format!("{p}.thermal.{sub}"), reason);
+            }
+        }
+        for (i, t) in self.cross.iter().enumerate() {
+            for (sub, reason) in t.check() {
+                v.err(&format!("cross[{i}].{sub}"), reason);
+            }
+            for (field, name) in [("base_axis", &t.base_axis), ("comp_axis", &t.comp_axis)] {
+                if !self.axes.iter().any(|a| &a.name == name) {
+                    v.err(&format!("cross[{i}].{field}"), format!("no axis named '{name}'"));
+                }
+            }
+            if t.base_axis == t.comp_axis {
+                v.err(&format!("cross[{i}].comp_axis"), "must differ from the base axis".into());
             }
         }
         let cb = &self.crossbeam;
@@ -795,7 +837,7 @@ impl Preset {
         v.errors
     }
 
-    /// Applies `path=value` overrides (`axes.z.backlash.width_um=12`). A list of named items
+    /// Applies `path=value` overrides (`axes.z.backlash.minus_to_plus.mode=lump`). A list of named items
     /// can be indexed by its `name` field. The value is read as RON/JSON-like text; a bare
     /// word is taken as a string (enum variants such as `lump`).
     pub fn with_override(&self, path: &str, value: &str) -> Result<Preset, PresetError> {

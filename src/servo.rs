@@ -16,6 +16,8 @@ pub struct Servo {
     kv_n_s_per_m: f64,
     ki_per_s: f64,
     vff: f64,
+    /// aff·M: feed-forward force per commanded acceleration.
+    aff_mass_kg: f64,
     cur_alpha: f64,
     force_limit_n: f64,
     t3_s: f64,
@@ -44,6 +46,8 @@ pub struct ServoInput {
     pub vel_add_mps: f64,
     /// Force feed-forward from a servo-stage compensation (torque converted to load side).
     pub force_ff_n: f64,
+    /// Commanded acceleration for the acceleration feed-forward.
+    pub acc_cmd_mps2: f64,
 }
 
 /// Converts between motor torque and load-side force for a screw of this lead.
@@ -60,6 +64,10 @@ impl Servo {
             kv_n_s_per_m: s.kv_n_s_per_m,
             ki_per_s: s.ki_per_s,
             vff: s.vff,
+            aff_mass_kg: {
+                let (m_m, m_t) = masses(a);
+                s.aff * (m_m + m_t)
+            },
             cur_alpha: current_alpha(s.current_lag_s, t3_s),
             force_limit_n: s.torque_limit_nm * force_per_torque(lead_m),
             t3_s,
@@ -83,6 +91,7 @@ impl Servo {
         self.kv_n_s_per_m = fresh.kv_n_s_per_m;
         self.ki_per_s = fresh.ki_per_s;
         self.vff = fresh.vff;
+        self.aff_mass_kg = fresh.aff_mass_kg;
         self.cur_alpha = fresh.cur_alpha;
         self.force_limit_n = fresh.force_limit_n;
         self.avg2 = fresh.avg2;
@@ -106,7 +115,7 @@ impl Servo {
         let ev = vel_cmd - vel_fb;
         self.vel_fb_mps = vel_fb;
         let integ_new = self.integ_n + self.kv_n_s_per_m * self.ki_per_s * ev * t3;
-        let raw = self.kv_n_s_per_m * ev + integ_new + inp.force_ff_n;
+        let raw = self.kv_n_s_per_m * ev + integ_new + inp.force_ff_n + self.aff_mass_kg * inp.acc_cmd_mps2;
         let lim = self.force_limit_n;
         let clamped = raw.clamp(-lim, lim);
         // Conditional integration: hold the integrator while the output is saturated in the

@@ -7,8 +7,20 @@
 //! - [`ServoComp`]: the amplifier adds per-axis feed-forwards at T3 (quadrant/TFF), into the
 //!   position command, the velocity command or the torque command.
 //!
+//! The four mechanisms of the seeds live in [`backlash`], [`quadrant`], [`thermal`] and
+//! [`cross`]; [`build`] installs what a preset enables; [`measure`] holds the measuring
+//! cycles an engineer runs to fill their parameters.
+//!
 //! Each compensation is a small state machine with one `step` per period and names its own
 //! trace signals, so the GUI, the tests and the diagnosis all drive the same code.
+
+pub mod backlash;
+pub mod cross;
+pub mod measure;
+pub mod quadrant;
+pub mod thermal;
+
+use crate::preset::Preset;
 
 /// A trace column a compensation writes: (axis name or "" for machine-wide, signal, unit).
 #[derive(Debug, Clone, PartialEq)]
@@ -41,6 +53,14 @@ pub trait PositionComp: Send {
     fn signals(&self) -> Vec<CompSignal>;
     /// Current values, in the order and units of [`PositionComp::signals`].
     fn values(&self, out: &mut [f64]);
+    /// A measurement this compensation wants taken now: (axis, position m).
+    fn measurement_request(&self) -> Option<(usize, f64)> {
+        None
+    }
+    /// The real displacement measured at the requested point, m.
+    fn measured(&mut self, _t_s: f64, _real_m: f64) {}
+    fn as_any(&self) -> &dyn std::any::Any;
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any;
 }
 
 /// What a servo-stage compensation sees each T3 for its axis.
@@ -69,6 +89,8 @@ pub trait ServoComp: Send {
     fn step(&mut self, ctx: &ServoCompCtx, out: &mut ServoCompOut);
     fn signals(&self) -> Vec<CompSignal>;
     fn values(&self, out: &mut [f64]);
+    fn as_any(&self) -> &dyn std::any::Any;
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any;
 }
 
 /// The compensations installed in a machine. Empty is a valid (uncompensated) machine.
@@ -90,4 +112,53 @@ impl CompStack {
             .chain(self.servo.iter().flat_map(|c| c.signals()))
             .collect()
     }
+}
+
+impl CompStack {
+    /// The first installed compensation of type `T` acting on `axis` (position stage).
+    pub fn find<T: 'static>(&self) -> impl Iterator<Item = &T> {
+        self.position
+            .iter()
+            .filter_map(|c| c.as_any().downcast_ref::<T>())
+            .chain(self.servo.iter().filter_map(|c| c.as_any().downcast_ref::<T>()))
+    }
+
+    pub fn find_mut<T: 'static>(&mut self) -> impl Iterator<Item = &mut T> {
+        self.position
+            .iter_mut()
+            .filter_map(|c| c.as_any_mut().downcast_mut::<T>())
+            .chain(self.servo.iter_mut().filter_map(|c| c.as_any_mut().downcast_mut::<T>()))
+    }
+}
+
+/// Installs every compensation the preset enables, in the order the NC applies them:
+/// backlash, thermal, cross (position stage), then quadrant (servo stage).
+pub fn build(p: &Preset) -> CompStack {
+    let mut stack = CompStack::default();
+    for (i, a) in p.axes.iter().enumerate() {
+        if a.backlash.enabled {
+            stack
+                .position
+                .push(Box::new(backlash::Backlash::new(i, &a.name, a.backlash.clone())));
+        }
+    }
+    for (i, a) in p.axes.iter().enumerate() {
+        if a.thermal.enabled {
+            stack
+                .position
+                .push(Box::new(thermal::Thermal::new(i, &a.name, a.thermal.clone())));
+        }
+    }
+    let cross = cross::Cross::new(&p.cross, |n| p.axes.iter().position(|a| a.name == n));
+    if !cross.is_empty() {
+        stack.position.push(Box::new(cross));
+    }
+    for (i, a) in p.axes.iter().enumerate() {
+        if a.quadrant.enabled {
+            stack
+                .servo
+                .push(Box::new(quadrant::Quadrant::new(i, &a.name, a.quadrant.clone())));
+        }
+    }
+    stack
 }

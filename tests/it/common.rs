@@ -9,13 +9,14 @@ pub fn plain() -> Preset {
         .preset;
     let a = &mut p.axes[0];
     a.friction.enabled = false;
-    a.backlash.enabled = false;
-    a.thermal.enabled = false;
+    a.lost_motion.enabled = false;
+    a.screw_thermal.enabled = false;
     a.lead_error.enabled = false;
     a.gravity.enabled = false;
     a.encoder.quantize_motor = false;
     a.encoder.quantize_scale = false;
     a.servo.vff = 0.0;
+    a.servo.aff = 0.0;
     a.initial_pos_mm = 0.0;
     p.nc.accdec.kind = AccDecKind::None;
     p.nc.initial_mode = Mode::Normal;

@@ -54,7 +54,7 @@ fn step_response_matches_second_order_analytic() {
     let disc = (kv_over_m * kv_over_m - 4.0 * kv_over_m * kp).sqrt();
     let p1 = (-kv_over_m + disc) / 2.0;
     let p2 = (-kv_over_m - disc) / 2.0;
-    let t0 = tr.t()[k0] - m.t3_s; // the command acts during the period ending at t[k0]
+    let t0 = tr.t()[k0]; // the row of the instant the step command is first applied
     let mut worst = 0.0_f64;
     let k1 = at(tr, t0 + 0.15);
     for (t_abs, x) in tr.t()[k0..k1].iter().zip(&pos[k0..k1]) {
@@ -103,8 +103,8 @@ fn torque_offset_at_constant_velocity_equals_coulomb() {
 fn uncompensated_backlash_loses_b_at_a_reversal() {
     let mut p = plain();
     let a = &mut p.axes[0];
-    a.backlash.enabled = true;
-    a.backlash.width_um = 20.0;
+    a.lost_motion.enabled = true;
+    a.lost_motion.width_um = 20.0;
     a.friction.enabled = true;
     let m = run(&p, "G90 G01 X10. F1000\nG04 P500\nX5.\nG04 P500\nM30\n");
     let tr = &m.trace;
@@ -128,8 +128,8 @@ fn uncompensated_backlash_loses_b_at_a_reversal() {
 fn closed_loop_on_the_scale_removes_the_backlash_error() {
     let mut p = plain();
     let a = &mut p.axes[0];
-    a.backlash.enabled = true;
-    a.backlash.width_um = 20.0;
+    a.lost_motion.enabled = true;
+    a.lost_motion.width_um = 20.0;
     a.friction.enabled = true;
     a.servo.feedback = axisbench::preset::Feedback::Scale;
     let m = run(&p, "G90 G01 X10. F1000\nG04 P500\nX5.\nG04 P500\nM30\n");
@@ -200,12 +200,12 @@ fn stroke_friction_rises_on_short_strokes_and_recovers_on_long_ones() {
 fn thermal_growth_grows_with_distance_from_the_fixed_bearing() {
     let mut p = plain();
     let a = &mut p.axes[0];
-    a.thermal.enabled = true;
-    a.thermal.initial_c = 25.0; // a warm screw, 5 K above reference
-    a.thermal.ambient_c = 25.0;
-    a.thermal.motion_heat_w_s_per_m = 0.0;
-    a.thermal.friction_heat_share = 0.0;
-    let alpha = a.thermal.alpha_per_k;
+    a.screw_thermal.enabled = true;
+    a.screw_thermal.initial_c = 25.0; // a warm screw, 5 K above reference
+    a.screw_thermal.ambient_c = 25.0;
+    a.screw_thermal.motion_heat_w_s_per_m = 0.0;
+    a.screw_thermal.friction_heat_share = 0.0;
+    let alpha = a.screw_thermal.alpha_per_k;
     let m = run(&p, "G90 G01 X100. F6000\nG04 P300\nX400.\nM30\n");
     let tr = &m.trace;
     let th = col(tr, "x.thermal");
@@ -228,7 +228,7 @@ fn thermal_growth_grows_with_distance_from_the_fixed_bearing() {
 fn screw_heats_from_friction_and_cools_to_ambient() {
     let mut p = plain();
     let a = &mut p.axes[0];
-    a.thermal.enabled = true;
+    a.screw_thermal.enabled = true;
     a.friction.enabled = true;
     let m = run(&p, "G90 G01 F6000\nX400.\nX0.\nX400.\nX0.\nM30\n");
     let temp = col(&m.trace, "temp.x_screw");

@@ -126,15 +126,15 @@ fn unknown_fields_syntax_and_version_are_errors() {
 fn overrides_set_nested_fields_by_axis_name() {
     let p = preset::load_embedded("default.ron").expect("loads").preset;
     let q = p
-        .with_override("axes.x.backlash.width_um", "12.5")
+        .with_override("axes.x.lost_motion.width_um", "12.5")
         .expect("override");
-    assert_eq!(q.axes[0].backlash.width_um, 12.5);
+    assert_eq!(q.axes[0].lost_motion.width_um, 12.5);
     let q = p
         .with_override("nc.accdec.kind", "bell")
         .expect("enum override");
     assert_eq!(q.nc.accdec.kind, axisbench::preset::AccDecKind::Bell);
     let e = p
-        .with_override("axes.x.backlash.widht_um", "1")
+        .with_override("axes.x.lost_motion.widht_um", "1")
         .expect_err("typo");
     assert!(e.to_string().contains("widht_um"), "{e}");
     let e = p

@@ -1,0 +1,372 @@
+//! Backlash compensation with a separate output mode per reversal direction (seed 000).
+//!
+//! Once per distribution cycle (each generated position command) the sign of the
+//! distributed move command is compared with the last non-zero one. On a reversal the
+//! correction for the new direction is output by that direction's mode:
+//! - `lump`: all of it in the reversal cycle;
+//! - `distance`: N equal parts A; the first in the reversal cycle, with the register R set to
+//!   that cycle's travel; then, each cycle, if R ≥ B·n (R as accumulated up to the previous
+//!   cycle) n is incremented and, while n ≤ N, one more part is output; R then accumulates
+//!   this cycle's travel (the seed's steps S13–S17);
+//! - `time`: M equal parts, one per cycle for M consecutive cycles;
+//! - `function`: the cumulative share of the amount follows a table of distance or time
+//!   since the reversal (the seed's variant).
+//!
+//! Sign convention (as on the seed's control): the correction is added to the move command.
+//! Like the seed's flag F = 0 at power-on, nothing is output until the first reversal; the
+//! first direction of motion is the reference direction. Moving in the reference direction
+//! the accumulated correction is 0; moving against it, it is +Q when moving + and −Q when
+//! moving − (a + → − reversal adds −Q in total, − → + adds +Q).
+//!
+//! A new reversal while parts are still pending starts the new direction's sequence with
+//! whatever amount takes the accumulated correction from where it is to the new direction's
+//! value, split by that direction's mode (N or M parts of that amount). So the correction
+//! always ends at the value of the current direction, however short the strokes.
+
+use serde::{Deserialize, Serialize};
+
+use super::{CompSignal, PosCompCtx, PositionComp};
+
+/// Commanded travel per cycle below this (m) is standstill, not a direction.
+pub const MOVE_EPS_M: f64 = 1e-12;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum OutputMode {
+    #[default]
+    Lump,
+    Distance,
+    Time,
+    Function,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FunctionBasis {
+    #[default]
+    Distance,
+    Time,
+}
+
+/// How one reversal direction outputs its correction.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DirectionParams {
+    pub mode: OutputMode,
+    /// Distance mode: number of parts N.
+    pub parts_n: u32,
+    /// Distance mode: travel B between parts.
+    pub step_b_um: f64,
+    /// Time mode: number of cycles M.
+    pub cycles_m: u32,
+    /// Function mode: what the table's x is (distance in µm or time in ms since reversal).
+    pub function_basis: FunctionBasis,
+    /// Function mode: (distance µm or time ms, cumulative share 0…1), ending at share 1.
+    pub function: Vec<(f64, f64)>,
+}
+
+impl Default for DirectionParams {
+    fn default() -> Self {
+        DirectionParams {
+            mode: OutputMode::Lump,
+            parts_n: 4,
+            step_b_um: 50.0,
+            cycles_m: 8,
+            function_basis: FunctionBasis::Distance,
+            function: vec![(0.0, 0.0), (100.0, 1.0)],
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BacklashParams {
+    pub enabled: bool,
+    /// Backlash amount Q.
+    pub q_um: f64,
+    pub plus_to_minus: DirectionParams,
+    pub minus_to_plus: DirectionParams,
+}
+
+impl Default for BacklashParams {
+    fn default() -> Self {
+        BacklashParams {
+            enabled: false,
+            q_um: 0.0,
+            plus_to_minus: DirectionParams::default(),
+            minus_to_plus: DirectionParams::default(),
+        }
+    }
+}
+
+impl BacklashParams {
+    /// Validation findings as (field path relative to this block, reason).
+    pub fn check(&self) -> Vec<(String, String)> {
+        let mut out = Vec::new();
+        if !self.q_um.is_finite() || self.q_um < 0.0 {
+            out.push(("q_um".into(), format!("{} must be a finite amount ≥ 0", self.q_um)));
+        }
+        for (name, d) in [("plus_to_minus", &self.plus_to_minus), ("minus_to_plus", &self.minus_to_plus)] {
+            if d.parts_n == 0 {
+                out.push((format!("{name}.parts_n"), "must be ≥ 1".into()));
+            }
+            if d.cycles_m == 0 {
+                out.push((format!("{name}.cycles_m"), "must be ≥ 1".into()));
+            }
+            if !d.step_b_um.is_finite() || d.step_b_um <= 0.0 {
+                out.push((format!("{name}.step_b_um"), format!("{} must be > 0", d.step_b_um)));
+            }
+            if d.mode == OutputMode::Function {
+                out.extend(crate::table::check(&format!("{name}.function"), &d.function, 2));
+                for (i, &(x, f)) in d.function.iter().enumerate() {
+                    if !(0.0..=1.0).contains(&f) {
+                        out.push((format!("{name}.function[{i}]"), format!("share {f} is outside 0…1")));
+                    }
+                    if x < 0.0 {
+                        out.push((format!("{name}.function[{i}]"), format!("x = {x} is before the reversal")));
+                    }
+                }
+                if d.function.last().is_some_and(|p| p.1 != 1.0) {
+                    out.push((format!("{name}.function"), "the last share must be 1 (all of Q)".into()));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// The sequence being output after the latest reversal.
+#[derive(Debug, Clone)]
+struct Sequence {
+    mode: OutputMode,
+    /// Amount this sequence must add in total (signed), m.
+    amount_m: f64,
+    /// Part size for distance/time modes, m.
+    part_m: f64,
+    /// Parts output so far (the seed's n or m).
+    n: u32,
+    parts: u32,
+    /// Register R: commanded travel since the reversal, m.
+    r_m: f64,
+    step_b_m: f64,
+    cycles: u32,
+    basis: FunctionBasis,
+    /// (x in m or s, share)
+    table: Vec<(f64, f64)>,
+    /// Share output so far (function mode).
+    share: f64,
+    /// Output of this sequence so far, m.
+    emitted_m: f64,
+}
+
+/// Backlash compensation of one axis.
+pub struct Backlash {
+    axis: usize,
+    axis_name: String,
+    pub p: BacklashParams,
+    /// Last non-zero direction of the distributed move command.
+    pub dir: i8,
+    /// First direction of motion: the direction whose correction is 0.
+    pub ref_dir: i8,
+    /// Accumulated correction C, m.
+    pub acc_m: f64,
+    /// Output of the latest cycle, m.
+    pub out_m: f64,
+    seq: Option<Sequence>,
+    pub reversals: u64,
+}
+
+impl Backlash {
+    pub fn new(axis: usize, axis_name: &str, p: BacklashParams) -> Backlash {
+        Backlash {
+            axis,
+            axis_name: axis_name.to_owned(),
+            p,
+            dir: 0,
+            ref_dir: 0,
+            acc_m: 0.0,
+            out_m: 0.0,
+            seq: None,
+            reversals: 0,
+        }
+    }
+
+    /// The value the accumulated correction settles at while moving in `dir`.
+    pub fn target_m(&self, dir: i8) -> f64 {
+        if dir == 0 || dir == self.ref_dir {
+            0.0
+        } else {
+            dir as f64 * self.p.q_um * 1e-6
+        }
+    }
+
+    /// One distribution cycle with commanded travel `d_m` and cycle time `period_s`.
+    /// Returns this cycle's output (m); the accumulated correction is `acc_m`.
+    pub fn cycle(&mut self, d_m: f64, period_s: f64) -> f64 {
+        let s: i8 = if d_m > MOVE_EPS_M {
+            1
+        } else if d_m < -MOVE_EPS_M {
+            -1
+        } else {
+            0
+        };
+        let travel = d_m.abs();
+        let mut out = 0.0;
+        if s != 0 && self.dir != 0 && s != self.dir {
+            self.reversals += 1;
+            let dp = if s < 0 { &self.p.plus_to_minus } else { &self.p.minus_to_plus };
+            let amount = self.target_m(s) - self.acc_m;
+            let mut seq = Sequence {
+                mode: dp.mode,
+                amount_m: amount,
+                part_m: 0.0,
+                n: 1,
+                parts: 1,
+                r_m: travel,
+                step_b_m: dp.step_b_um * 1e-6,
+                cycles: 1,
+                basis: dp.function_basis,
+                table: dp
+                    .function
+                    .iter()
+                    .map(|&(x, f)| match dp.function_basis {
+                        FunctionBasis::Distance => (x * 1e-6, f),
+                        FunctionBasis::Time => (x * 1e-3, f),
+                    })
+                    .collect(),
+                share: 0.0,
+                emitted_m: 0.0,
+            };
+            match dp.mode {
+                OutputMode::Lump => out = amount,
+                OutputMode::Distance => {
+                    seq.parts = dp.parts_n.max(1);
+                    seq.part_m = amount / seq.parts as f64;
+                    out = seq.part_m;
+                }
+                OutputMode::Time => {
+                    seq.parts = dp.cycles_m.max(1);
+                    seq.part_m = amount / seq.parts as f64;
+                    out = seq.part_m;
+                }
+                OutputMode::Function => {
+                    let x = match seq.basis {
+                        FunctionBasis::Distance => seq.r_m,
+                        FunctionBasis::Time => period_s,
+                    };
+                    out = function_output(&mut seq, x);
+                }
+            }
+            let done = match seq.mode {
+                OutputMode::Lump => true,
+                OutputMode::Distance | OutputMode::Time => seq.parts == 1,
+                OutputMode::Function => seq.share >= 1.0,
+            };
+            seq.emitted_m = out;
+            self.seq = if done { None } else { Some(seq) };
+        } else if s != 0 && self.dir == 0 {
+            self.ref_dir = s;
+        } else if let Some(seq) = &mut self.seq {
+            let mut done = false;
+            match seq.mode {
+                OutputMode::Lump => done = true,
+                OutputMode::Distance => {
+                    if seq.r_m >= seq.step_b_m * seq.n as f64 {
+                        seq.n += 1;
+                        if seq.n > seq.parts {
+                            done = true;
+                        } else {
+                            seq.r_m += travel;
+                            out = seq.part_m;
+                            if seq.n == seq.parts {
+                                done = true;
+                            }
+                        }
+                    } else {
+                        seq.r_m += travel;
+                    }
+                }
+                OutputMode::Time => {
+                    seq.n += 1;
+                    if seq.n > seq.parts {
+                        done = true;
+                    } else {
+                        out = seq.part_m;
+                        if seq.n == seq.parts {
+                            done = true;
+                        }
+                    }
+                }
+                OutputMode::Function => {
+                    seq.r_m += travel;
+                    seq.cycles += 1;
+                    let x = match seq.basis {
+                        FunctionBasis::Distance => seq.r_m,
+                        FunctionBasis::Time => seq.cycles as f64 * period_s,
+                    };
+                    out = function_output(seq, x);
+                    done = seq.share >= 1.0;
+                }
+            }
+            if done {
+                // The last part lands the correction exactly on its target, whatever
+                // rounding the division into parts left.
+                if out != 0.0 {
+                    out = seq.amount_m - seq.emitted_m;
+                }
+                self.seq = None;
+            } else {
+                seq.emitted_m += out;
+            }
+        }
+        if s != 0 {
+            self.dir = s;
+        }
+        self.acc_m += out;
+        self.out_m = out;
+        out
+    }
+}
+
+/// Function mode: output the growth of the share since the last cycle; at or past the end of
+/// the table the share is 1.
+fn function_output(seq: &mut Sequence, x: f64) -> f64 {
+    let end = seq.table.last().map_or(0.0, |p| p.0);
+    let share = if x >= end { 1.0 } else { crate::table::interp(&seq.table, x) };
+    let share = share.max(seq.share);
+    let out = seq.amount_m * (share - seq.share);
+    seq.share = share;
+    out
+}
+
+impl PositionComp for Backlash {
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+
+    fn name(&self) -> &str {
+        "backlash"
+    }
+
+    fn step(&mut self, ctx: &PosCompCtx<'_>, out_m: &mut [f64]) {
+        let d = ctx.cmd_m[self.axis] - ctx.prev_cmd_m[self.axis];
+        self.cycle(d, ctx.period_s);
+        out_m[self.axis] += self.acc_m;
+    }
+
+    fn signals(&self) -> Vec<CompSignal> {
+        vec![CompSignal {
+            axis: self.axis_name.clone(),
+            signal: "backlash_comp".into(),
+            unit: "mm".into(),
+        }]
+    }
+
+    fn values(&self, out: &mut [f64]) {
+        out[0] = self.acc_m * 1e3;
+    }
+}

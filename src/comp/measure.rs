@@ -1,0 +1,249 @@
+//! Measuring cycles, run on the simulated machine the way an engineer runs them on a real
+//! one, to fill the compensations' parameters: a reversal test for the backlash Q, a sag
+//! table by moving X across the beam, thermal displacement at intervals, and the seed-002
+//! Step 1 / Step 2 calibrations. Every cycle runs with all compensations off except where
+//! the procedure needs one on (the thermal calibrations run with thermal correction on).
+
+use crate::comp::thermal::{self, Step1, Thermal};
+use crate::machine::{Machine, MachineError};
+use crate::preset::Preset;
+
+/// The preset with every compensation switched off.
+pub fn uncompensated(p: &Preset) -> Preset {
+    let mut q = p.clone();
+    for a in &mut q.axes {
+        a.backlash.enabled = false;
+        a.quadrant.enabled = false;
+        a.thermal.enabled = false;
+    }
+    q.cross.clear();
+    q.scenario.plc_events.clear();
+    q.scenario.duration_s = None;
+    q.scenario.trace_every = 1;
+    q
+}
+
+/// The preset with every compensation off but its scenario as it is (for comparisons).
+pub fn uncompensated_scenario(p: &Preset) -> Preset {
+    let mut q = p.clone();
+    for a in &mut q.axes {
+        a.backlash.enabled = false;
+        a.quadrant.enabled = false;
+        a.thermal.enabled = false;
+    }
+    q.cross.clear();
+    q
+}
+
+fn axis_index(p: &Preset, name: &str) -> Result<usize, MachineError> {
+    p.axes
+        .iter()
+        .position(|a| a.name == name)
+        .ok_or_else(|| MachineError::Structure(format!("no axis named '{name}'")))
+}
+
+/// Runs `program` on the channel of `axis`; the other channels only end (their axes hold).
+fn run_on_channel(p: &Preset, axis: usize, program: &str) -> Result<Machine, MachineError> {
+    let ch = p.axes[axis].channel;
+    let programs: Vec<(String, String)> = (0..p.scenario.programs.len())
+        .map(|c| {
+            let text = if c == ch { program.to_owned() } else { "M30\n".to_owned() };
+            (format!("measure-ch{}.ngc", c + 1), text)
+        })
+        .collect();
+    let mut m = Machine::new(p, &programs)?;
+    m.run(3600.0);
+    Ok(m)
+}
+
+/// Last sample index of each run of `cmd == x` (in order of the targets).
+fn dwell_ends(cmd: &[f64], targets: &[f64]) -> Vec<Option<usize>> {
+    let mut out = Vec::new();
+    let mut from = 0;
+    for &x in targets {
+        let start = cmd[from..].iter().position(|&c| c == x).map(|i| i + from);
+        let end = start.map(|s| s + cmd[s..].iter().take_while(|&&c| c == x).count() - 1);
+        if let Some(e) = end {
+            from = e + 1;
+        }
+        out.push(end);
+    }
+    out
+}
+
+/// Reversal test: approach a point from below, read the table; move past it, come back
+/// from above, read again. The difference is the lost motion Q (µm).
+pub fn backlash_um(p: &Preset, axis_name: &str) -> Result<f64, MachineError> {
+    let q = uncompensated(p);
+    let i = axis_index(&q, axis_name)?;
+    let a = &q.axes[i];
+    let l = a.letter;
+    let x0 = a.initial_pos_mm + 20.0;
+    let prog = format!(
+        "G90 G01 F1000\n{l}{:.4}\n{l}{x0:.4}\nG04 P800\n{l}{:.4}\n{l}{x0:.4}\nG04 P800\nM30\n",
+        x0 - 10.0,
+        x0 + 10.0
+    );
+    let m = run_on_channel(&q, i, &prog)?;
+    let tr = &m.trace;
+    let cmd = tr
+        .values(&format!("{axis_name}.cmd"))
+        .ok_or_else(|| MachineError::Structure("trace has no cmd".into()))?;
+    let pos = tr
+        .values(&format!("{axis_name}.pos"))
+        .ok_or_else(|| MachineError::Structure("trace has no pos".into()))?;
+    let ends = dwell_ends(cmd, &[x0, x0]);
+    match (ends[0], ends[1]) {
+        (Some(k1), Some(k2)) => Ok((pos[k2] - pos[k1]) * 1e3),
+        _ => Err(MachineError::Structure("the reversal test did not reach its point".into())),
+    }
+}
+
+/// Sag table: moves the base axis of the tool post whose Z is `comp_axis` across the beam
+/// to `n` evenly spaced points from `from_mm` to `to_mm`, and reads the Z error at each.
+/// Returns (x mm, correction µm) ready for a cross table. The other post stays parked
+/// where the preset starts it.
+pub fn sag_table(
+    p: &Preset,
+    base_axis: &str,
+    comp_axis: &str,
+    n: usize,
+    from_mm: f64,
+    to_mm: f64,
+) -> Result<Vec<(f64, f64)>, MachineError> {
+    if n < 2 {
+        return Err(MachineError::Structure("a sag table needs at least 2 points".into()));
+    }
+    let q = uncompensated(p);
+    let ib = axis_index(&q, base_axis)?;
+    let iz = axis_index(&q, comp_axis)?;
+    if q.axes[ib].channel != q.axes[iz].channel {
+        return Err(MachineError::Structure(format!(
+            "{base_axis} and {comp_axis} are on different channels"
+        )));
+    }
+    let l = q.axes[ib].letter;
+    let xs: Vec<f64> = (0..n)
+        .map(|k| {
+            let x = from_mm + (to_mm - from_mm) * k as f64 / (n - 1) as f64;
+            (x * 1e4).round() / 1e4
+        })
+        .collect();
+    let mut prog = String::from("G90 G01 F8000\n");
+    for x in &xs {
+        prog += &format!("{l}{x:.4}\nG04 P300\n");
+    }
+    prog += "M30\n";
+    let m = run_on_channel(&q, ib, &prog)?;
+    let tr = &m.trace;
+    let missing = || MachineError::Structure("trace lacks the measured signals".into());
+    let cmd = tr.values(&format!("{base_axis}.cmd")).ok_or_else(missing)?;
+    let err = tr.values(&format!("{comp_axis}.err")).ok_or_else(missing)?;
+    let ends = dwell_ends(cmd, &xs);
+    xs.iter()
+        .zip(ends)
+        .map(|(&x, e)| {
+            e.map(|k| (x, err[k] * 1e3))
+                .ok_or_else(|| MachineError::Structure(format!("the sag run did not reach X = {x}")))
+        })
+        .collect()
+}
+
+/// The real thermal displacement (µm) at the thermal measurement point of `axis_name`,
+/// every `interval_s`, over the preset's own scenario with compensations off.
+pub fn thermal_series(
+    p: &Preset,
+    programs: &[(String, String)],
+    axis_name: &str,
+    interval_s: f64,
+) -> Result<Vec<(f64, f64)>, MachineError> {
+    let q = uncompensated(p);
+    let i = axis_index(&q, axis_name)?;
+    let x = q.axes[i].thermal.measure_pos_mm * 1e-3;
+    let mut m = Machine::new(&q, programs)?;
+    m.set_recording(false);
+    let per = (interval_s / m.t3_s).round().max(1.0) as u64;
+    let mut out = vec![(0.0, m.axes[i].plant.thermal.elongation_m(x) * 1e6)];
+    while !m.done() {
+        m.run_steps(per);
+        out.push((m.t_s(), m.axes[i].plant.thermal.elongation_m(x) * 1e6));
+    }
+    Ok(out)
+}
+
+/// Runs `programs` (one run each, from cold) with thermal correction on at E = 1, measuring
+/// at the measurement point every `interval_s`; returns each run's (F m, A m) series.
+pub fn thermal_step1_runs(
+    p: &Preset,
+    axis_name: &str,
+    runs: &[Vec<(String, String)>],
+    interval_s: f64,
+) -> Result<Vec<Vec<(f64, f64)>>, MachineError> {
+    let mut q = uncompensated(p);
+    let i = axis_index(&q, axis_name)?;
+    let th = &mut q.axes[i].thermal;
+    *th = p.axes[i].thermal.clone();
+    th.enabled = true;
+    th.a = 1.0;
+    th.k_per_um = 0.0;
+    th.judgement = thermal::Judgement::None;
+    let mut out = Vec::new();
+    for programs in runs {
+        let mut m = Machine::new(&q, programs)?;
+        m.set_recording(false);
+        let per = (interval_s / m.t3_s).round().max(1.0) as u64;
+        while !m.done() {
+            m.run_steps(per);
+            for t in m.comps_mut().find_mut::<Thermal>() {
+                t.request_measurement();
+            }
+        }
+        m.run_steps(m.n23 as u64);
+        let log = m
+            .comps()
+            .find::<Thermal>()
+            .next()
+            .map(|t| t.log.iter().map(|&(_, f, a)| (f, a)).collect())
+            .unwrap_or_default();
+        out.push(log);
+    }
+    Ok(out)
+}
+
+/// Step 1 on the simulated machine: k from several programs.
+pub fn thermal_step1(
+    p: &Preset,
+    axis_name: &str,
+    runs: &[Vec<(String, String)>],
+    interval_s: f64,
+) -> Result<Step1, MachineError> {
+    let series = thermal_step1_runs(p, axis_name, runs, interval_s)?;
+    thermal::step1(&series).map_err(|e| MachineError::Structure(e.to_string()))
+}
+
+/// Step 2 on the simulated machine: runs `programs` with the preset's k and a, takes one
+/// measurement at `at_s`, and returns the new a.
+pub fn thermal_step2(
+    p: &Preset,
+    axis_name: &str,
+    programs: &[(String, String)],
+    at_s: f64,
+) -> Result<f64, MachineError> {
+    let mut q = uncompensated(p);
+    let i = axis_index(&q, axis_name)?;
+    q.axes[i].thermal = p.axes[i].thermal.clone();
+    q.axes[i].thermal.enabled = true;
+    q.axes[i].thermal.judgement = thermal::Judgement::None;
+    let mut m = Machine::new(&q, programs)?;
+    m.set_recording(false);
+    m.run_steps((at_s / m.t3_s).round() as u64);
+    for t in m.comps_mut().find_mut::<Thermal>() {
+        t.request_measurement();
+    }
+    m.run_steps(m.n23 as u64);
+    m.comps()
+        .find::<Thermal>()
+        .next()
+        .map(|t| t.p.a)
+        .ok_or_else(|| MachineError::Structure("no thermal correction installed".into()))
+}

@@ -1,0 +1,290 @@
+//! Quadrant (reversal) compensation that adapts to short strokes (seed 003).
+//!
+//! In the amplifier, every T3: reversals are detected from the internal position command
+//! (the acc/dec output the position loop receives). At each reversal the stroke PA since
+//! the previous reversal point is compared with P0: PA < P0 adds one to N; otherwise N is
+//! reset to 0 (the embodiment) or decremented by one (the claim's "decrease"), as selected.
+//! Then M = M0·A^(1 − e^(−N/B)) and T = T0·C^(1 − e^(−N/D)), and a feed-forward pulse of
+//! amount M and duration T is injected in the new direction of motion, into the torque
+//! command (default), the velocity command or the position command. The pulse is
+//! rectangular (M for T) or decays exponentially (M·e^(−t/T), cut after 5T).
+//!
+//! With `adaptive` off, N stays 0: a fixed TFF of M0 for T0, the conventional compensation
+//! the seed improves on. The first reversal measures PA from where the motion started.
+
+use serde::{Deserialize, Serialize};
+
+use super::{CompSignal, ServoComp, ServoCompCtx, ServoCompOut};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum NUpdate {
+    /// N := 0 after a long stroke (the seed's embodiment).
+    #[default]
+    Reset,
+    /// N := N − 1 after a long stroke, not below 0 (the claim's wording).
+    Decrement,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Injection {
+    #[default]
+    Torque,
+    Velocity,
+    Position,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PulseShape {
+    #[default]
+    Rectangular,
+    Exponential,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct QuadrantParams {
+    pub enabled: bool,
+    /// Adapt M and T to short strokes (seed 003); off = fixed TFF of M0 for T0.
+    pub adaptive: bool,
+    /// Pulse amount M0 for torque injection.
+    pub m0_torque_nm: f64,
+    /// Pulse amount M0 for velocity injection.
+    pub m0_vel_mm_per_s: f64,
+    /// Pulse amount M0 for position injection.
+    pub m0_pos_um: f64,
+    /// Pulse duration T0 (rectangular) or time constant (exponential).
+    pub t0_ms: f64,
+    /// TFF magnification A.
+    pub a_mag: f64,
+    /// TFF growth rate B (in reversals).
+    pub b_rate: f64,
+    /// Duration magnification C.
+    pub c_mag: f64,
+    /// Duration growth rate D (in reversals).
+    pub d_rate: f64,
+    /// Short-stroke threshold P0.
+    pub p0_mm: f64,
+    pub update: NUpdate,
+    pub inject: Injection,
+    pub shape: PulseShape,
+}
+
+impl Default for QuadrantParams {
+    fn default() -> Self {
+        // The seed's example: A = 2, B = 10, C = 1, D = 10.
+        QuadrantParams {
+            enabled: false,
+            adaptive: true,
+            m0_torque_nm: 0.5,
+            m0_vel_mm_per_s: 1.0,
+            m0_pos_um: 2.0,
+            t0_ms: 10.0,
+            a_mag: 2.0,
+            b_rate: 10.0,
+            c_mag: 1.0,
+            d_rate: 10.0,
+            p0_mm: 15.0,
+            update: NUpdate::Reset,
+            inject: Injection::Torque,
+            shape: PulseShape::Rectangular,
+        }
+    }
+}
+
+impl QuadrantParams {
+    pub fn check(&self) -> Vec<(String, String)> {
+        let mut out = Vec::new();
+        let mut finite = |name: &str, v: f64, min: f64, strict: bool| {
+            if !v.is_finite() || v < min || (strict && v == min) {
+                out.push((
+                    name.to_owned(),
+                    format!("{v} must be {} {min}", if strict { ">" } else { "≥" }),
+                ));
+            }
+        };
+        finite("m0_torque_nm", self.m0_torque_nm, 0.0, false);
+        finite("m0_vel_mm_per_s", self.m0_vel_mm_per_s, 0.0, false);
+        finite("m0_pos_um", self.m0_pos_um, 0.0, false);
+        finite("t0_ms", self.t0_ms, 0.0, true);
+        finite("a_mag", self.a_mag, 0.0, true);
+        finite("b_rate", self.b_rate, 0.0, true);
+        finite("c_mag", self.c_mag, 0.0, true);
+        finite("d_rate", self.d_rate, 0.0, true);
+        finite("p0_mm", self.p0_mm, 0.0, false);
+        out
+    }
+
+    /// M and T for a short-stroke count N: M = M0·A^(1−e^(−N/B)), T = T0·C^(1−e^(−N/D)).
+    /// M is in the unit of the injection point.
+    pub fn m_t(&self, n: f64) -> (f64, f64) {
+        let m0 = match self.inject {
+            Injection::Torque => self.m0_torque_nm,
+            Injection::Velocity => self.m0_vel_mm_per_s,
+            Injection::Position => self.m0_pos_um,
+        };
+        let m = m0 * self.a_mag.powf(1.0 - (-n / self.b_rate).exp());
+        let t = self.t0_ms * 1e-3 * self.c_mag.powf(1.0 - (-n / self.d_rate).exp());
+        (m, t)
+    }
+}
+
+/// Quadrant compensation of one axis.
+pub struct Quadrant {
+    axis: usize,
+    axis_name: String,
+    pub p: QuadrantParams,
+    dir: i8,
+    last_rev_m: Option<f64>,
+    /// Distance between the previous and the latest reversal point, m.
+    pub pa_m: f64,
+    /// Short-stroke count N.
+    pub n: f64,
+    /// Amount and duration of the latest pulse (M in the injection unit, T in s).
+    pub m: f64,
+    pub t_s: f64,
+    pulse_age_s: Option<f64>,
+    pulse_dir: f64,
+    /// Value injected this T3, in the injection unit.
+    pub value: f64,
+    pub reversals: u64,
+}
+
+impl Quadrant {
+    pub fn new(axis: usize, axis_name: &str, p: QuadrantParams) -> Quadrant {
+        let (m, t) = p.m_t(0.0);
+        Quadrant {
+            axis,
+            axis_name: axis_name.to_owned(),
+            p,
+            dir: 0,
+            last_rev_m: None,
+            pa_m: 0.0,
+            n: 0.0,
+            m,
+            t_s: t,
+            pulse_age_s: None,
+            pulse_dir: 0.0,
+            value: 0.0,
+            reversals: 0,
+        }
+    }
+
+    /// One T3: command increment `d_m`, reversal point candidate `prev_cmd_m`.
+    pub fn tick(&mut self, prev_cmd_m: f64, d_m: f64, t3_s: f64) -> f64 {
+        let eps = super::backlash::MOVE_EPS_M;
+        let s: i8 = if d_m > eps {
+            1
+        } else if d_m < -eps {
+            -1
+        } else {
+            0
+        };
+        if s != 0 && self.dir == 0 {
+            self.last_rev_m = Some(prev_cmd_m);
+        }
+        if s != 0 && self.dir != 0 && s != self.dir {
+            self.reversals += 1;
+            let here = prev_cmd_m;
+            self.pa_m = self.last_rev_m.map_or(f64::INFINITY, |p| (here - p).abs());
+            self.last_rev_m = Some(here);
+            if self.p.adaptive {
+                if self.pa_m < self.p.p0_mm * 1e-3 {
+                    self.n += 1.0;
+                } else {
+                    self.n = match self.p.update {
+                        NUpdate::Reset => 0.0,
+                        NUpdate::Decrement => (self.n - 1.0).max(0.0),
+                    };
+                }
+            } else {
+                self.n = 0.0;
+            }
+            let (m, t) = self.p.m_t(self.n);
+            self.m = m;
+            self.t_s = t;
+            self.pulse_age_s = Some(0.0);
+            self.pulse_dir = s as f64;
+        }
+        if s != 0 {
+            self.dir = s;
+        }
+        self.value = match self.pulse_age_s {
+            Some(age) => {
+                let v = match self.p.shape {
+                    PulseShape::Rectangular if age < self.t_s => self.m,
+                    PulseShape::Exponential if age < 5.0 * self.t_s => self.m * (-age / self.t_s).exp(),
+                    _ => {
+                        self.pulse_age_s = None;
+                        0.0
+                    }
+                };
+                if let Some(a) = &mut self.pulse_age_s {
+                    *a += t3_s;
+                }
+                self.pulse_dir * v
+            }
+            None => 0.0,
+        };
+        self.value
+    }
+}
+
+impl ServoComp for Quadrant {
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+
+    fn name(&self) -> &str {
+        "quadrant"
+    }
+
+    fn axis(&self) -> usize {
+        self.axis
+    }
+
+    fn step(&mut self, ctx: &ServoCompCtx, out: &mut ServoCompOut) {
+        let v = self.tick(ctx.prev_cmd_m, ctx.cmd_m - ctx.prev_cmd_m, ctx.t3_s);
+        match self.p.inject {
+            Injection::Torque => out.torque_nm += v,
+            Injection::Velocity => out.vel_mps += v * 1e-3,
+            Injection::Position => out.pos_m += v * 1e-6,
+        }
+    }
+
+    fn signals(&self) -> Vec<CompSignal> {
+        let s = |name: &str, unit: &str| CompSignal {
+            axis: self.axis_name.clone(),
+            signal: name.into(),
+            unit: unit.into(),
+        };
+        let unit = match self.p.inject {
+            Injection::Torque => "N*m",
+            Injection::Velocity => "mm/s",
+            Injection::Position => "mm",
+        };
+        vec![
+            s("quadrant_comp", unit),
+            s("quadrant_pa", "mm"),
+            s("quadrant_n", ""),
+            s("quadrant_m", unit),
+            s("quadrant_t", "s"),
+        ]
+    }
+
+    fn values(&self, out: &mut [f64]) {
+        // Position pulses are set in µm; the trace holds mm.
+        let k = if self.p.inject == Injection::Position { 1e-3 } else { 1.0 };
+        out[0] = self.value * k;
+        out[1] = if self.pa_m.is_finite() { self.pa_m * 1e3 } else { 0.0 };
+        out[2] = self.n;
+        out[3] = self.m * k;
+        out[4] = self.t_s;
+    }
+}
