@@ -14,8 +14,16 @@ pub struct Reversal {
     pub pos_mm: f64,
     /// "+→−" or "−→+".
     pub direction: String,
-    /// Largest |cmd − pos| in the window after the reversal.
+    /// Largest change of the error (cmd − pos), in the window after the reversal, from its
+    /// steady value in the old direction (taken mid-way through the previous stroke): the
+    /// step or spike the reversal causes. A constant offset (which setting the reference
+    /// point removes) does not count.
     pub peak_err_mm: f64,
+    /// The same change at the end of the window: the lost motion that remains once the
+    /// transient has passed.
+    pub settled_err_mm: f64,
+    /// Largest |cmd − pos| in the same window.
+    pub peak_abs_err_mm: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -29,11 +37,11 @@ pub struct AxisSummary {
 }
 
 /// Finds reversals of `cmd`: sign changes of its increments, standstill keeping the last
-/// direction. Returns (sample index, +1 for −→+ / −1 for +→−).
+/// direction. Returns (index of the first sample moving the new way, +1 for −→+ / −1 for
+/// +→−); the turning point is the sample before it.
 pub fn reversals(cmd: &[f64]) -> Vec<(usize, f64)> {
     let mut out = Vec::new();
     let mut dir = 0.0;
-    let mut last_move = 0;
     for i in 1..cmd.len() {
         let d = cmd[i] - cmd[i - 1];
         if d.abs() <= MOVE_EPS_MM || !d.is_finite() {
@@ -41,10 +49,9 @@ pub fn reversals(cmd: &[f64]) -> Vec<(usize, f64)> {
         }
         let s = d.signum();
         if dir != 0.0 && s != dir {
-            out.push((last_move, s));
+            out.push((i, s));
         }
         dir = s;
-        last_move = i;
     }
     out
 }
@@ -74,6 +81,10 @@ pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
                 None => (max_err_mm, rms_err_mm),
             };
             let revs = reversals(cmd);
+            let first_move = cmd
+                .windows(2)
+                .position(|w| (w[1] - w[0]).abs() > MOVE_EPS_MM)
+                .unwrap_or(0);
             let reversals = revs
                 .iter()
                 .enumerate()
@@ -83,16 +94,25 @@ pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
                         .get(n + 1)
                         .map_or(f64::INFINITY, |&(k, _)| t[k])
                         .min(t0 + REVERSAL_WINDOW_S);
-                    let peak = (i..t.len())
-                        .take_while(|&k| t[k] <= t_end)
+                    let window = || (i..t.len()).take_while(|&k| t[k] <= t_end);
+                    // Steady error in the old direction: mid-way through the previous stroke.
+                    let prev_start = if n == 0 { first_move } else { revs[n - 1].0 };
+                    let e0 = err[(prev_start + i) / 2];
+                    let peak = window()
+                        .map(|k| (err[k] - e0).abs())
+                        .filter(|x| x.is_finite())
+                        .fold(0.0, f64::max);
+                    let peak_abs = window()
                         .map(|k| err[k].abs())
                         .filter(|x| x.is_finite())
                         .fold(0.0, f64::max);
                     Reversal {
                         t_s: t0,
-                        pos_mm: cmd[i],
+                        pos_mm: cmd[i.saturating_sub(1)],
                         direction: if s > 0.0 { "−→+" } else { "+→−" }.into(),
                         peak_err_mm: peak,
+                        settled_err_mm: window().last().map_or(0.0, |k| err[k] - e0),
+                        peak_abs_err_mm: peak_abs,
                     }
                 })
                 .collect();
@@ -124,20 +144,20 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
             a.max_err_mm * 1e3,
             a.rms_err_mm * 1e3
         );
-        if let Some(th) = trace.values(&format!("{}.thermal", a.axis)) {
-            if th.iter().any(|&x| x != 0.0) {
-                let comp = trace.values(&format!("{}.thermal_comp", a.axis));
-                let resid = th
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &x)| x + comp.map_or(0.0, |c| c[k]));
-                let (max, rms) = max_rms(resid);
-                s += &format!(
-                    "  thermal residual (growth − correction): max {:.3} µm, rms {:.3} µm\n",
-                    max * 1e3,
-                    rms * 1e3
-                );
-            }
+        if let Some(th) = trace.values(&format!("{}.thermal", a.axis))
+            && th.iter().any(|&x| x != 0.0)
+        {
+            let comp = trace.values(&format!("{}.thermal_comp", a.axis));
+            let resid = th
+                .iter()
+                .enumerate()
+                .map(|(k, &x)| x + comp.map_or(0.0, |c| c[k]));
+            let (max, rms) = max_rms(resid);
+            s += &format!(
+                "  thermal residual (growth − correction): max {:.3} µm, rms {:.3} µm\n",
+                max * 1e3,
+                rms * 1e3
+            );
         }
         if a.reversals.is_empty() {
             s += "  no reversals\n";
@@ -151,7 +171,7 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
                 }
             }
             s += &format!(
-                "  {} reversals: largest peak error +→− {:.4} µm, −→+ {:.4} µm\n",
+                "  {} reversals: largest peak error change +→− {:.4} µm, −→+ {:.4} µm\n",
                 a.reversals.len(),
                 dn * 1e3,
                 up * 1e3
@@ -159,12 +179,14 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
         }
         for r in a.reversals.iter().filter(|_| a.reversals.len() <= 12) {
             s += &format!(
-                "  reversal {} at t = {:.4} s, {} = {:.4} mm: peak error {:.4} µm\n",
+                "  reversal {} at t = {:.4} s, {} = {:.4} mm: peak error change {:.4} µm, settled change {:+.4} µm (peak |error| {:.4} µm)\n",
                 r.direction,
                 r.t_s,
                 a.axis,
                 r.pos_mm,
-                r.peak_err_mm * 1e3
+                r.peak_err_mm * 1e3,
+                r.settled_err_mm * 1e3,
+                r.peak_abs_err_mm * 1e3
             );
         }
     }

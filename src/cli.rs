@@ -7,7 +7,6 @@ use clap::{Parser, Subcommand};
 
 use axisbench::Machine;
 use axisbench::analysis;
-use axisbench::comp::cross::CrossTable;
 use axisbench::comp::measure;
 use axisbench::comp::quadrant::Quadrant;
 use axisbench::comp::thermal::Thermal;
@@ -175,7 +174,15 @@ pub fn run(cli: Cli) -> Result<()> {
             sets,
             compare,
             measure_cross,
-        }) => simulate(&preset, program, duration, out, &sets, compare, measure_cross),
+        }) => simulate(
+            &preset,
+            program,
+            duration,
+            out,
+            &sets,
+            compare,
+            measure_cross,
+        ),
         Some(Command::Measure { what }) => measure(what),
         Some(Command::Calibrate { step }) => calibrate(step),
         Some(Command::Validate { presets }) => validate(&presets),
@@ -219,7 +226,8 @@ fn program_texts(lp: &LoadedPreset, program: Option<&PathBuf>) -> Result<Vec<(St
         match (program, i) {
             (Some(p), 0) => texts.push((
                 p.display().to_string(),
-                std::fs::read_to_string(p).with_context(|| format!("{}: cannot read program", p.display()))?,
+                std::fs::read_to_string(p)
+                    .with_context(|| format!("{}: cannot read program", p.display()))?,
             )),
             _ => texts.push((name.clone(), lp.program_text(name)?)),
         }
@@ -248,25 +256,25 @@ fn simulate(
         if !cb.enabled {
             bail!("--measure-cross: {} has no crossbeam", lp.origin);
         }
-        let mut tables = Vec::new();
-        for post in &cb.posts {
-            let points = measure::sag_table(&lp.preset, &post.x_axis, &post.z_axis, n, 0.0, cb.span_mm)?;
-            say!("measured sag table for {} over {} ({n} points):", post.z_axis, post.x_axis);
-            for (x, dz) in &points {
+        let tables = measure::sag_tables(&lp.preset, n)?;
+        for t in &tables {
+            say!(
+                "measured cross table {} over {} ({n} points, µm):",
+                t.comp_axis,
+                t.base_axis
+            );
+            for (x, dz) in &t.points {
                 say!("  x = {x:9.3} mm  ΔZ = {dz:8.3} µm");
             }
-            tables.push(CrossTable {
-                enabled: true,
-                base_axis: post.x_axis.clone(),
-                comp_axis: post.z_axis.clone(),
-                points,
-            });
         }
         lp.preset.cross = tables;
     }
     let texts = program_texts(&lp, program.as_ref())?;
     let runs: Vec<(&str, axisbench::Preset)> = if compare {
-        vec![("compensated", lp.preset.clone()), ("uncompensated", measure::uncompensated_scenario(&lp.preset))]
+        vec![
+            ("compensated", lp.preset.clone()),
+            ("uncompensated", measure::uncompensated_scenario(&lp.preset)),
+        ]
     } else {
         vec![("", lp.preset.clone())]
     };
@@ -276,7 +284,9 @@ fn simulate(
         let limit_s = duration.unwrap_or(4.0 * 3600.0);
         m.run(limit_s);
         if !m.done() {
-            eprintln!("warning: stopped after {limit_s} s of machine time before the program ended");
+            eprintln!(
+                "warning: stopped after {limit_s} s of machine time before the program ended"
+            );
         }
         if !label.is_empty() {
             say!("== {label}");
@@ -309,7 +319,11 @@ fn comp_report(m: &Machine) -> String {
             "quadrant {}: {} reversals, last PA = {:.3} mm, N = {}, M = {:.4}, T = {:.2} ms\n",
             a.name,
             q.reversals,
-            if q.pa_m.is_finite() { q.pa_m * 1e3 } else { 0.0 },
+            if q.pa_m.is_finite() {
+                q.pa_m * 1e3
+            } else {
+                0.0
+            },
             q.n,
             q.m,
             q.t_s * 1e3
@@ -335,13 +349,24 @@ fn measure(what: MeasureCmd) -> Result<()> {
         } => {
             let lp = preset::load(&preset)?;
             let span = lp.preset.crossbeam.span_mm;
-            let table = measure::sag_table(&lp.preset, &base, &axis, points, from.unwrap_or(0.0), to.unwrap_or(span))?;
+            let table = measure::sag_table(
+                &lp.preset,
+                &base,
+                &axis,
+                points,
+                from.unwrap_or(0.0),
+                to.unwrap_or(span),
+            )?;
             say!("sag table for {axis} over {base} (x mm, correction µm):");
             for (x, dz) in table {
                 say!("  ({x:.3}, {dz:.3}),");
             }
         }
-        MeasureCmd::Thermal { preset, axis, interval } => {
+        MeasureCmd::Thermal {
+            preset,
+            axis,
+            interval,
+        } => {
             let lp = preset::load(&preset)?;
             let texts = program_texts(&lp, None)?;
             for (t, d) in measure::thermal_series(&lp.preset, &texts, &axis, interval)? {
@@ -372,15 +397,34 @@ fn calibrate(step: CalibrateCmd) -> Result<()> {
             };
             let fit = measure::thermal_step1(&lp.preset, &axis, &runs, interval)?;
             for (j, (a, k, n)) in fit.fits.iter().enumerate() {
-                say!("program {}: r = {a:.4} + {k:.6}·|F|/µm over {n} points", j + 1);
+                say!(
+                    "program {}: r = {a:.4} + {k:.6}·|F|/µm over {n} points",
+                    j + 1
+                );
             }
-            say!("k = {:.6} per µm (mean of {} programs)", fit.k_per_um, fit.fits.len());
+            say!(
+                "k = {:.6} per µm (mean of {} programs)",
+                fit.k_per_um,
+                fit.fits.len()
+            );
         }
-        CalibrateCmd::Step2 { preset, axis, at, sets } => {
+        CalibrateCmd::Step2 {
+            preset,
+            axis,
+            at,
+            sets,
+        } => {
             let lp = load_with_sets(&preset, &sets)?;
             let texts = program_texts(&lp, None)?;
             let a = measure::thermal_step2(&lp.preset, &axis, &texts, at)?;
-            say!("a = {a:.4} (measured at t = {at} s, k = {})", lp.preset.axes.iter().find(|x| x.name == axis).map_or(0.0, |x| x.thermal.k_per_um));
+            say!(
+                "a = {a:.4} (measured at t = {at} s, k = {})",
+                lp.preset
+                    .axes
+                    .iter()
+                    .find(|x| x.name == axis)
+                    .map_or(0.0, |x| x.thermal.k_per_um)
+            );
         }
     }
     Ok(())
@@ -411,13 +455,16 @@ fn bench(steps: u64) -> Result<()> {
         let f = axisbench::bench::run(n, steps, false)?;
         say!(
             "axes={} recording=off steps={} axis_steps_per_s={:.0}",
-            f.n_axes, f.steps, f.axis_steps_per_s
+            f.n_axes,
+            f.steps,
+            f.axis_steps_per_s
         );
     }
     let f = axisbench::bench::run(1, steps / 4, true)?;
     say!(
         "axes=1 recording=on steps={} axis_steps_per_s={:.0}",
-        f.steps, f.axis_steps_per_s
+        f.steps,
+        f.axis_steps_per_s
     );
     let f = axisbench::bench::run(1, steps, false)?;
     say!("axis_steps_per_s={:.0}", f.axis_steps_per_s);

@@ -58,7 +58,7 @@ pub struct AxisRt {
     pub sag_m: f64,
     /// True tool position: plant position plus sag, m.
     pub pos_m: f64,
-        pub servo_add: ServoCompOut,
+    pub servo_add: ServoCompOut,
     post_z: bool,
     /// Plant output and true position at the start of the latest T3 (what the trace row
     /// for that instant shows, next to the command and feedback the servo used).
@@ -246,7 +246,7 @@ impl Machine {
                 cmd_m: x0,
                 sag_m: 0.0,
                 pos_m: pos,
-                                servo_add: ServoCompOut::default(),
+                servo_add: ServoCompOut::default(),
                 post_z: false,
                 sample_out: crate::plant::PlantOut::default(),
                 sample_pos_m: pos,
@@ -311,8 +311,52 @@ impl Machine {
             .chain(comps.servo.iter().map(|c| c.signals().len()))
             .collect();
         self.comps = comps;
+        if self.k == 0 {
+            self.start_corrected();
+        }
         let on = self.rec.is_some();
         self.set_recording(on);
+    }
+
+    /// At power-up the position corrections are already in force and the axes stand at rest
+    /// at the corrected position, as on a real control; without this every table would be
+    /// switched on as a step at t = 0.
+    fn start_corrected(&mut self) {
+        let n23 = self.n23 as usize;
+        for (i, a) in self.axes.iter().enumerate() {
+            self.comp_cmd[i] = a.prev_raw_m;
+            self.comp_fb[i] = a.feedback_m();
+            self.comp_temp[i] = a.plant.thermal.temp_c;
+        }
+        self.comp_prev.clone_from(&self.comp_cmd);
+        self.comp_out.iter_mut().for_each(|o| *o = 0.0);
+        let ctx = PosCompCtx {
+            t_s: 0.0,
+            period_s: self.t3_s * n23 as f64,
+            cmd_m: &self.comp_cmd,
+            prev_cmd_m: &self.comp_prev,
+            fb_m: &self.comp_fb,
+            temps_c: &self.comp_temp,
+        };
+        for c in self.comps.position.iter_mut() {
+            c.step(&ctx, &mut self.comp_out);
+        }
+        for (i, a) in self.axes.iter_mut().enumerate() {
+            let off = self.comp_out[i];
+            if off == 0.0 {
+                continue;
+            }
+            let x = a.prev_raw_m + off;
+            let params = &self.preset.axes[i];
+            a.plant = AxisPlant::new(params, self.t3_s, x);
+            a.servo = Servo::new(params, self.t3_s, x);
+            a.prev_comp_m = x;
+            a.buf_comp.iter_mut().for_each(|b| *b = x);
+            a.cmd_nc_m = x;
+            a.cmd_m = x;
+            a.pos_m = a.plant.out.pos_m + a.sag_m;
+        }
+        self.update_sag();
     }
 
     pub fn comps(&self) -> &CompStack {
@@ -452,13 +496,14 @@ impl Machine {
             a.cmd_m = a.buf_comp[j] + add.pos_m;
             let input = crate::servo::ServoInput {
                 cmd_m: a.cmd_m,
+                ff_cmd_m: a.cmd_raw_m,
                 fb_pos_m: a.feedback_m(),
                 motor_pos_m: a.plant.out.motor_enc_m,
                 vel_add_mps: add.vel_mps,
                 force_ff_n: add.torque_nm * a.f_per_t,
                 acc_cmd_mps2: a.acc_cmd_mps2,
             };
-                        let force = a.servo.step(&input);
+            let force = a.servo.step(&input);
             a.sample_out = a.plant.out;
             a.sample_pos_m = a.pos_m;
             a.plant.step(force);
@@ -564,7 +609,7 @@ impl Machine {
         for a in &mut self.axes {
             // One acceleration per T2 segment: the command is (piecewise) linear inside it,
             // so a per-T3 second difference would be a train of spikes.
-            let v = (a.buf_comp[n23 - 1] - a.prev_comp_m) / t2_s;
+            let v = (a.buf_raw[n23 - 1] - a.prev_raw_m) / t2_s;
             a.acc_cmd_mps2 = (v - a.seg_vel_mps) / t2_s;
             a.seg_vel_mps = v;
             a.prev_raw_m = a.buf_raw[n23 - 1];
@@ -587,7 +632,7 @@ impl Machine {
                 a.cmd_m * 1e3,
                 (a.cmd_m - a.cmd_raw_m) * 1e3,
                 o.motor_pos_m * 1e3,
-                                a.sample_pos_m * 1e3,
+                a.sample_pos_m * 1e3,
                 (a.cmd_raw_m - a.sample_pos_m) * 1e3,
                 a.servo.ferr_m * 1e3,
                 o.vel_mps * 1e3,
@@ -598,7 +643,7 @@ impl Machine {
                 o.gap_m * 1e3,
                 o.thermal_m * 1e3,
                 o.lead_err_m * 1e3,
-                                (a.sample_pos_m - o.pos_m) * 1e3,
+                (a.sample_pos_m - o.pos_m) * 1e3,
             ];
             for (i, v) in vals.into_iter().enumerate() {
                 tr.signals[base + i].data.push(v);

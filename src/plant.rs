@@ -114,6 +114,7 @@ pub struct StrokeFriction {
     recovery_m: f64,
     /// Short-stroke level n.
     pub level: f64,
+    level_at_rev: f64,
     dir: f64,
     last_rev_m: Option<f64>,
     /// Current friction multiplier.
@@ -130,6 +131,7 @@ impl StrokeFriction {
             growth_strokes: s.growth_strokes,
             recovery_m: s.recovery_mm * 1e-3,
             level: 0.0,
+            level_at_rev: 0.0,
             dir: 0.0,
             last_rev_m: None,
             scale: 1.0,
@@ -138,6 +140,19 @@ impl StrokeFriction {
 
     #[inline]
     fn observe(&mut self, x_m: f64, v_mps: f64) {
+        // Recovery: past the pitch, the film rebuilds with every mm travelled.
+        if self.level > 0.0
+            && let Some(prev) = self.last_rev_m
+        {
+            let beyond = (x_m - prev).abs() - self.pitch_m;
+            if beyond > 0.0 {
+                self.level = self.level_at_rev * (-beyond / self.recovery_m).exp();
+                if self.level < 1e-6 {
+                    self.level = 0.0;
+                }
+                self.update_scale();
+            }
+        }
         if v_mps.abs() < REVERSAL_SPEED_MPS {
             return;
         }
@@ -145,19 +160,19 @@ impl StrokeFriction {
         if dir == self.dir {
             return;
         }
-        if self.dir != 0.0 {
-            if let Some(prev) = self.last_rev_m {
-                let stroke = (x_m - prev).abs();
-                self.level *= (-stroke / self.recovery_m).exp();
-                if stroke < self.pitch_m {
-                    self.level += 1.0;
-                }
-            }
-            self.last_rev_m = Some(x_m);
-        } else {
-            self.last_rev_m = Some(x_m);
+        if self.dir != 0.0
+            && let Some(prev) = self.last_rev_m
+            && (x_m - prev).abs() < self.pitch_m
+        {
+            self.level += 1.0;
         }
+        self.last_rev_m = Some(x_m);
+        self.level_at_rev = self.level;
         self.dir = dir;
+        self.update_scale();
+    }
+
+    fn update_scale(&mut self) {
         self.scale = if self.enabled {
             1.0 + self.rise_ratio * (1.0 - (-self.level / self.growth_strokes).exp())
         } else {
@@ -383,6 +398,7 @@ impl AxisPlant {
         let (dir, last) = (self.stroke.dir, self.stroke.last_rev_m);
         self.stroke = StrokeFriction::from_params(a);
         self.stroke.level = level;
+        self.stroke.level_at_rev = level;
         self.stroke.dir = dir;
         self.stroke.last_rev_m = last;
         // The screw keeps its temperature across a parameter edit; only `new` starts cold.

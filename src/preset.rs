@@ -45,6 +45,10 @@ pub const EMBEDDED: &[(&str, &str)] = &[
         include_str!("../presets/thermal_warmup.ngc"),
     ),
     (
+        "thermal_warmup_slow.ngc",
+        include_str!("../presets/thermal_warmup_slow.ngc"),
+    ),
+    (
         "vertical_lathe_crossbeam.ron",
         include_str!("../presets/vertical_lathe_crossbeam.ron"),
     ),
@@ -55,6 +59,10 @@ pub const EMBEDDED: &[(&str, &str)] = &[
     (
         "vertical_lathe_right.ngc",
         include_str!("../presets/vertical_lathe_right.ngc"),
+    ),
+    (
+        "vertical_lathe_right_traverse.ngc",
+        include_str!("../presets/vertical_lathe_right_traverse.ngc"),
     ),
     ("xy_circle.ron", include_str!("../presets/xy_circle.ron")),
     ("xy_circle.ngc", include_str!("../presets/xy_circle.ngc")),
@@ -286,8 +294,9 @@ pub struct Stribeck {
 }
 
 /// Friction rise over short reversal strokes (SPEC §5): each reversal stroke shorter than
-/// `pitch_mm` adds one to a level n, each stroke decays n by exp(−stroke/recovery), and the
-/// Coulomb and static levels scale by 1 + rise·(1 − e^(−n/growth_strokes)).
+/// `pitch_mm` adds one to a level n; once a stroke runs past the pitch, n decays with the
+/// distance beyond it, n·exp(−(d − pitch)/recovery); the Coulomb and static levels scale
+/// by 1 + rise·(1 − e^(−n/growth_strokes)).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StrokeFriction {
@@ -767,11 +776,17 @@ impl Preset {
             }
             for (field, name) in [("base_axis", &t.base_axis), ("comp_axis", &t.comp_axis)] {
                 if !self.axes.iter().any(|a| &a.name == name) {
-                    v.err(&format!("cross[{i}].{field}"), format!("no axis named '{name}'"));
+                    v.err(
+                        &format!("cross[{i}].{field}"),
+                        format!("no axis named '{name}'"),
+                    );
                 }
             }
             if t.base_axis == t.comp_axis {
-                v.err(&format!("cross[{i}].comp_axis"), "must differ from the base axis".into());
+                v.err(
+                    &format!("cross[{i}].comp_axis"),
+                    "must differ from the base axis".into(),
+                );
             }
         }
         let cb = &self.crossbeam;

@@ -38,6 +38,9 @@ pub struct Servo {
 pub struct ServoInput {
     /// Position command after all position compensations.
     pub cmd_m: f64,
+    /// The interpolated command before machine-error corrections: the feed-forwards follow
+    /// it, so correction pulses (a lump backlash step) go to the position loop only.
+    pub ff_cmd_m: f64,
     /// Position feedback (motor encoder or scale, already quantized).
     pub fb_pos_m: f64,
     /// Motor encoder position in load travel (quantized), for the velocity loop.
@@ -108,14 +111,17 @@ impl Servo {
             (inp.motor_pos_m - self.motor_hist_m[0]) * self.inv_t3
         };
         self.motor_hist_m = [inp.motor_pos_m, self.motor_hist_m[0]];
-        let vel_ff = self.vff * (inp.cmd_m - self.prev_cmd_m) * self.inv_t3;
-        self.prev_cmd_m = inp.cmd_m;
+        let vel_ff = self.vff * (inp.ff_cmd_m - self.prev_cmd_m) * self.inv_t3;
+        self.prev_cmd_m = inp.ff_cmd_m;
         self.ferr_m = inp.cmd_m - inp.fb_pos_m;
         let vel_cmd = self.kp_per_s * self.ferr_m + vel_ff + inp.vel_add_mps;
         let ev = vel_cmd - vel_fb;
         self.vel_fb_mps = vel_fb;
         let integ_new = self.integ_n + self.kv_n_s_per_m * self.ki_per_s * ev * t3;
-        let raw = self.kv_n_s_per_m * ev + integ_new + inp.force_ff_n + self.aff_mass_kg * inp.acc_cmd_mps2;
+        let raw = self.kv_n_s_per_m * ev
+            + integ_new
+            + inp.force_ff_n
+            + self.aff_mass_kg * inp.acc_cmd_mps2;
         let lim = self.force_limit_n;
         let clamped = raw.clamp(-lim, lim);
         // Conditional integration: hold the integrator while the output is saturated in the

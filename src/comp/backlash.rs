@@ -104,9 +104,15 @@ impl BacklashParams {
     pub fn check(&self) -> Vec<(String, String)> {
         let mut out = Vec::new();
         if !self.q_um.is_finite() || self.q_um < 0.0 {
-            out.push(("q_um".into(), format!("{} must be a finite amount ≥ 0", self.q_um)));
+            out.push((
+                "q_um".into(),
+                format!("{} must be a finite amount ≥ 0", self.q_um),
+            ));
         }
-        for (name, d) in [("plus_to_minus", &self.plus_to_minus), ("minus_to_plus", &self.minus_to_plus)] {
+        for (name, d) in [
+            ("plus_to_minus", &self.plus_to_minus),
+            ("minus_to_plus", &self.minus_to_plus),
+        ] {
             if d.parts_n == 0 {
                 out.push((format!("{name}.parts_n"), "must be ≥ 1".into()));
             }
@@ -114,20 +120,36 @@ impl BacklashParams {
                 out.push((format!("{name}.cycles_m"), "must be ≥ 1".into()));
             }
             if !d.step_b_um.is_finite() || d.step_b_um <= 0.0 {
-                out.push((format!("{name}.step_b_um"), format!("{} must be > 0", d.step_b_um)));
+                out.push((
+                    format!("{name}.step_b_um"),
+                    format!("{} must be > 0", d.step_b_um),
+                ));
             }
             if d.mode == OutputMode::Function {
-                out.extend(crate::table::check(&format!("{name}.function"), &d.function, 2));
+                out.extend(crate::table::check(
+                    &format!("{name}.function"),
+                    &d.function,
+                    2,
+                ));
                 for (i, &(x, f)) in d.function.iter().enumerate() {
                     if !(0.0..=1.0).contains(&f) {
-                        out.push((format!("{name}.function[{i}]"), format!("share {f} is outside 0…1")));
+                        out.push((
+                            format!("{name}.function[{i}]"),
+                            format!("share {f} is outside 0…1"),
+                        ));
                     }
                     if x < 0.0 {
-                        out.push((format!("{name}.function[{i}]"), format!("x = {x} is before the reversal")));
+                        out.push((
+                            format!("{name}.function[{i}]"),
+                            format!("x = {x} is before the reversal"),
+                        ));
                     }
                 }
                 if d.function.last().is_some_and(|p| p.1 != 1.0) {
-                    out.push((format!("{name}.function"), "the last share must be 1 (all of Q)".into()));
+                    out.push((
+                        format!("{name}.function"),
+                        "the last share must be 1 (all of Q)".into(),
+                    ));
                 }
             }
         }
@@ -214,7 +236,11 @@ impl Backlash {
         let mut out = 0.0;
         if s != 0 && self.dir != 0 && s != self.dir {
             self.reversals += 1;
-            let dp = if s < 0 { &self.p.plus_to_minus } else { &self.p.minus_to_plus };
+            let dp = if s < 0 {
+                &self.p.plus_to_minus
+            } else {
+                &self.p.minus_to_plus
+            };
             let amount = self.target_m(s) - self.acc_m;
             let mut seq = Sequence {
                 mode: dp.mode,
@@ -332,7 +358,11 @@ impl Backlash {
 /// the table the share is 1.
 fn function_output(seq: &mut Sequence, x: f64) -> f64 {
     let end = seq.table.last().map_or(0.0, |p| p.0);
-    let share = if x >= end { 1.0 } else { crate::table::interp(&seq.table, x) };
+    let share = if x >= end {
+        1.0
+    } else {
+        crate::table::interp(&seq.table, x)
+    };
     let share = share.max(seq.share);
     let out = seq.amount_m * (share - seq.share);
     seq.share = share;

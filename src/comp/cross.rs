@@ -64,7 +64,11 @@ impl Cross {
                     Some(Installed {
                         base: index(&t.base_axis)?,
                         comp: index(&t.comp_axis)?,
-                        points_m: t.points.iter().map(|&(x, z)| (x * 1e-3, z * 1e-6)).collect(),
+                        points_m: t
+                            .points
+                            .iter()
+                            .map(|&(x, z)| (x * 1e-3, z * 1e-6))
+                            .collect(),
                         value_m: 0.0,
                         name: t.comp_axis.clone(),
                     })

@@ -47,7 +47,11 @@ fn run_on_channel(p: &Preset, axis: usize, program: &str) -> Result<Machine, Mac
     let ch = p.axes[axis].channel;
     let programs: Vec<(String, String)> = (0..p.scenario.programs.len())
         .map(|c| {
-            let text = if c == ch { program.to_owned() } else { "M30\n".to_owned() };
+            let text = if c == ch {
+                program.to_owned()
+            } else {
+                "M30\n".to_owned()
+            };
             (format!("measure-ch{}.ngc", c + 1), text)
         })
         .collect();
@@ -95,14 +99,16 @@ pub fn backlash_um(p: &Preset, axis_name: &str) -> Result<f64, MachineError> {
     let ends = dwell_ends(cmd, &[x0, x0]);
     match (ends[0], ends[1]) {
         (Some(k1), Some(k2)) => Ok((pos[k2] - pos[k1]) * 1e3),
-        _ => Err(MachineError::Structure("the reversal test did not reach its point".into())),
+        _ => Err(MachineError::Structure(
+            "the reversal test did not reach its point".into(),
+        )),
     }
 }
 
-/// Sag table: moves the base axis of the tool post whose Z is `comp_axis` across the beam
-/// to `n` evenly spaced points from `from_mm` to `to_mm`, and reads the Z error at each.
-/// Returns (x mm, correction µm) ready for a cross table. The other post stays parked
-/// where the preset starts it.
+/// Sag table: moves `base_axis` across the beam to `n` evenly spaced points from `from_mm`
+/// to `to_mm`, and reads the error of `comp_axis` at each. Returns (x mm, correction µm)
+/// ready for a cross table. Every other axis stays parked where the preset starts it; the
+/// base axis may be on another channel than the compensated one (the other tool post).
 pub fn sag_table(
     p: &Preset,
     base_axis: &str,
@@ -112,16 +118,13 @@ pub fn sag_table(
     to_mm: f64,
 ) -> Result<Vec<(f64, f64)>, MachineError> {
     if n < 2 {
-        return Err(MachineError::Structure("a sag table needs at least 2 points".into()));
+        return Err(MachineError::Structure(
+            "a sag table needs at least 2 points".into(),
+        ));
     }
     let q = uncompensated(p);
     let ib = axis_index(&q, base_axis)?;
-    let iz = axis_index(&q, comp_axis)?;
-    if q.axes[ib].channel != q.axes[iz].channel {
-        return Err(MachineError::Structure(format!(
-            "{base_axis} and {comp_axis} are on different channels"
-        )));
-    }
+    axis_index(&q, comp_axis)?;
     let l = q.axes[ib].letter;
     let xs: Vec<f64> = (0..n)
         .map(|k| {
@@ -143,8 +146,9 @@ pub fn sag_table(
     xs.iter()
         .zip(ends)
         .map(|(&x, e)| {
-            e.map(|k| (x, err[k] * 1e3))
-                .ok_or_else(|| MachineError::Structure(format!("the sag run did not reach X = {x}")))
+            e.map(|k| (x, err[k] * 1e3)).ok_or_else(|| {
+                MachineError::Structure(format!("the sag run did not reach X = {x}"))
+            })
         })
         .collect()
 }
@@ -246,4 +250,42 @@ pub fn thermal_step2(
         .next()
         .map(|t| t.p.a)
         .ok_or_else(|| MachineError::Structure("no thermal correction installed".into()))
+}
+
+/// All cross tables for a crossbeam with one or two tool posts, `n` points each over the
+/// span. Each post's Z gets a table over its own X (measured with the other post parked)
+/// and, with two posts, one over the other post's X, zeroed at that post's parking position
+/// so the two add without counting the parked load twice. The sum is exact while either
+/// post stands at its parking position; elsewhere it leaves the small interaction term of
+/// two loads on one beam.
+pub fn sag_tables(
+    p: &Preset,
+    n: usize,
+) -> Result<Vec<crate::comp::cross::CrossTable>, MachineError> {
+    let cb = &p.crossbeam;
+    if !cb.enabled {
+        return Err(MachineError::Structure(
+            "the preset has no crossbeam".into(),
+        ));
+    }
+    let mut out = Vec::new();
+    for post in &cb.posts {
+        for other in &cb.posts {
+            let mut points = sag_table(p, &other.x_axis, &post.z_axis, n, 0.0, cb.span_mm)?;
+            if other.x_axis != post.x_axis {
+                let park = p.axes[axis_index(p, &other.x_axis)?].initial_pos_mm;
+                let at_park = crate::table::interp(&points, park);
+                for pt in &mut points {
+                    pt.1 -= at_park;
+                }
+            }
+            out.push(crate::comp::cross::CrossTable {
+                enabled: true,
+                base_axis: other.x_axis.clone(),
+                comp_axis: post.z_axis.clone(),
+                points,
+            });
+        }
+    }
+    Ok(out)
 }

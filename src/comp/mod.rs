@@ -120,14 +120,22 @@ impl CompStack {
         self.position
             .iter()
             .filter_map(|c| c.as_any().downcast_ref::<T>())
-            .chain(self.servo.iter().filter_map(|c| c.as_any().downcast_ref::<T>()))
+            .chain(
+                self.servo
+                    .iter()
+                    .filter_map(|c| c.as_any().downcast_ref::<T>()),
+            )
     }
 
     pub fn find_mut<T: 'static>(&mut self) -> impl Iterator<Item = &mut T> {
         self.position
             .iter_mut()
             .filter_map(|c| c.as_any_mut().downcast_mut::<T>())
-            .chain(self.servo.iter_mut().filter_map(|c| c.as_any_mut().downcast_mut::<T>()))
+            .chain(
+                self.servo
+                    .iter_mut()
+                    .filter_map(|c| c.as_any_mut().downcast_mut::<T>()),
+            )
     }
 }
 
@@ -137,16 +145,20 @@ pub fn build(p: &Preset) -> CompStack {
     let mut stack = CompStack::default();
     for (i, a) in p.axes.iter().enumerate() {
         if a.backlash.enabled {
-            stack
-                .position
-                .push(Box::new(backlash::Backlash::new(i, &a.name, a.backlash.clone())));
+            stack.position.push(Box::new(backlash::Backlash::new(
+                i,
+                &a.name,
+                a.backlash.clone(),
+            )));
         }
     }
     for (i, a) in p.axes.iter().enumerate() {
         if a.thermal.enabled {
-            stack
-                .position
-                .push(Box::new(thermal::Thermal::new(i, &a.name, a.thermal.clone())));
+            stack.position.push(Box::new(thermal::Thermal::new(
+                i,
+                &a.name,
+                a.thermal.clone(),
+            )));
         }
     }
     let cross = cross::Cross::new(&p.cross, |n| p.axes.iter().position(|a| a.name == n));
@@ -155,9 +167,11 @@ pub fn build(p: &Preset) -> CompStack {
     }
     for (i, a) in p.axes.iter().enumerate() {
         if a.quadrant.enabled {
-            stack
-                .servo
-                .push(Box::new(quadrant::Quadrant::new(i, &a.name, a.quadrant.clone())));
+            stack.servo.push(Box::new(quadrant::Quadrant::new(
+                i,
+                &a.name,
+                a.quadrant.clone(),
+            )));
         }
     }
     stack

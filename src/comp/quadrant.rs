@@ -215,7 +215,9 @@ impl Quadrant {
             Some(age) => {
                 let v = match self.p.shape {
                     PulseShape::Rectangular if age < self.t_s => self.m,
-                    PulseShape::Exponential if age < 5.0 * self.t_s => self.m * (-age / self.t_s).exp(),
+                    PulseShape::Exponential if age < 5.0 * self.t_s => {
+                        self.m * (-age / self.t_s).exp()
+                    }
                     _ => {
                         self.pulse_age_s = None;
                         0.0
@@ -280,9 +282,17 @@ impl ServoComp for Quadrant {
 
     fn values(&self, out: &mut [f64]) {
         // Position pulses are set in µm; the trace holds mm.
-        let k = if self.p.inject == Injection::Position { 1e-3 } else { 1.0 };
+        let k = if self.p.inject == Injection::Position {
+            1e-3
+        } else {
+            1.0
+        };
         out[0] = self.value * k;
-        out[1] = if self.pa_m.is_finite() { self.pa_m * 1e3 } else { 0.0 };
+        out[1] = if self.pa_m.is_finite() {
+            self.pa_m * 1e3
+        } else {
+            0.0
+        };
         out[2] = self.n;
         out[3] = self.m * k;
         out[4] = self.t_s;

@@ -148,11 +148,17 @@ impl ThermalParams {
         }
         out.extend(crate::table::check("e_ref", &self.e_ref, 0));
         if self.judgement == Judgement::Reference && self.e_ref.len() < 2 {
-            out.push(("e_ref".into(), "the reference judgement needs a curve of ≥ 2 points".into()));
+            out.push((
+                "e_ref".into(),
+                "the reference judgement needs a curve of ≥ 2 points".into(),
+            ));
         }
         for (i, w) in self.check_times_s.windows(2).enumerate() {
-            if !(w[1] > w[0]) {
-                out.push((format!("check_times_s[{}]", i + 1), "times must increase".into()));
+            if w[1] <= w[0] || w[1].is_nan() {
+                out.push((
+                    format!("check_times_s[{}]", i + 1),
+                    "times must increase".into(),
+                ));
             }
         }
         out
@@ -259,7 +265,9 @@ pub struct Thermal {
     pub measurements: u32,
     /// Last measured residual A (m), shown as a sparse trace signal.
     pub last_meas_m: Option<f64>,
-    meas_this_cycle: bool,
+    /// A measurement not yet shown in the trace: the trace may keep only every n-th sample,
+    /// so the value waits for the next recorded row instead of being lost.
+    meas_unrecorded: std::cell::Cell<bool>,
     /// Correction at the axis position this cycle, m.
     pub out_m: f64,
     /// (t s, F m, A m) of every measurement, for calibration.
@@ -280,7 +288,7 @@ impl Thermal {
             pending: false,
             measurements: 0,
             last_meas_m: None,
-            meas_this_cycle: false,
+            meas_unrecorded: std::cell::Cell::new(false),
             out_m: 0.0,
             log: vec![],
             t_now_s: 0.0,
@@ -314,13 +322,17 @@ impl Thermal {
         let a_resid = real_m - self.f_applied_m;
         self.log.push((t_s, self.f_m, a_resid));
         let d = a_resid + self.f_applied_m;
-        let r = if self.f_m == 0.0 { self.e } else { d / self.f_m };
+        let r = if self.f_m == 0.0 {
+            self.e
+        } else {
+            d / self.f_m
+        };
         self.p.a = r - self.p.k_per_um * (self.f_m * 1e6).abs();
         self.e = self.p.e_of(self.f_m);
         self.f_applied_m = self.e * self.f_m;
         self.measurements += 1;
         self.last_meas_m = Some(a_resid);
-        self.meas_this_cycle = true;
+        self.meas_unrecorded.set(true);
         self.pending = false;
         self.judge.measured(t_s, self.e);
     }
@@ -331,7 +343,8 @@ impl Thermal {
         match p.source {
             Source::Operation => {
                 self.pred_temp_c += dt_s / p.capacity_j_per_k
-                    * (p.heat_w_s_per_m * speed_mps - p.loss_w_per_k * (self.pred_temp_c - p.ambient_c));
+                    * (p.heat_w_s_per_m * speed_mps
+                        - p.loss_w_per_k * (self.pred_temp_c - p.ambient_c));
             }
             Source::Temperature => {
                 self.pred_temp_c += dt_s / p.sensor_lag_s * (screw_temp_c - self.pred_temp_c);
@@ -362,7 +375,6 @@ impl PositionComp for Thermal {
     fn step(&mut self, ctx: &PosCompCtx<'_>, out_m: &mut [f64]) {
         let i = self.axis;
         let speed = (ctx.cmd_m[i] - ctx.prev_cmd_m[i]).abs() / ctx.period_s;
-        self.meas_this_cycle = false;
         self.t_now_s = ctx.t_s;
         self.predict(ctx.t_s, ctx.period_s, speed, ctx.temps_c[i]);
         let x0 = self.p.fixed_end_mm * 1e-3;
@@ -376,16 +388,19 @@ impl PositionComp for Thermal {
             signal: name.into(),
             unit: unit.into(),
         };
-        vec![
+        let mut v = vec![
             s("thermal_comp", "mm"),
             s("thermal_f", "mm"),
             s("thermal_f_applied", "mm"),
             s("thermal_e", ""),
-            s("thermal_e_ref", ""),
             s("thermal_a", ""),
             s("meas", "mm"),
             s("thermal_measurements", ""),
-        ]
+        ];
+        if !self.p.e_ref.is_empty() {
+            v.push(s("thermal_e_ref", ""));
+        }
+        v
     }
 
     fn values(&self, out: &mut [f64]) {
@@ -393,17 +408,16 @@ impl PositionComp for Thermal {
         out[1] = self.f_m * 1e3;
         out[2] = self.f_applied_m * 1e3;
         out[3] = self.e;
-        out[4] = if self.p.e_ref.is_empty() {
-            f64::NAN
-        } else {
-            crate::table::interp(&self.p.e_ref, self.t_now_s)
-        };
-        out[5] = self.p.a;
-        out[6] = match (self.meas_this_cycle, self.last_meas_m) {
+        out[4] = self.p.a;
+        // Sparse: a value only on the row of a measurement (TRACE_FORMAT `meas`).
+        out[5] = match (self.meas_unrecorded.replace(false), self.last_meas_m) {
             (true, Some(a)) => a * 1e3,
             _ => f64::NAN,
         };
-        out[7] = self.measurements as f64;
+        out[6] = self.measurements as f64;
+        if let Some(o) = out.get_mut(7) {
+            *o = crate::table::interp(&self.p.e_ref, self.t_now_s);
+        }
     }
 
     fn measurement_request(&self) -> Option<(usize, f64)> {
@@ -417,7 +431,9 @@ impl PositionComp for Thermal {
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CalibError {
-    #[error("program {program}: {used} usable points (F ≠ 0, r ≥ 0), at least 2 with different |F| are needed")]
+    #[error(
+        "program {program}: {used} usable points (F ≠ 0, r ≥ 0), at least 2 with different |F| are needed"
+    )]
     TooFew { program: usize, used: usize },
 }
 
@@ -442,14 +458,20 @@ pub fn step1(programs: &[Vec<(f64, f64)>]) -> Result<Step1, CalibError> {
             .collect();
         let distinct = rows.iter().any(|r| r.0 != rows[0].0);
         if rows.len() < 2 || !distinct {
-            return Err(CalibError::TooFew { program: j, used: rows.len() });
+            return Err(CalibError::TooFew {
+                program: j,
+                used: rows.len(),
+            });
         }
         let x = DMatrix::from_fn(rows.len(), 2, |i, c| if c == 0 { 1.0 } else { rows[i].0 });
         let y = DVector::from_iterator(rows.len(), rows.iter().map(|r| r.1));
         let sol = x
             .svd(true, true)
             .solve(&y, 1e-12)
-            .map_err(|_| CalibError::TooFew { program: j, used: rows.len() })?;
+            .map_err(|_| CalibError::TooFew {
+                program: j,
+                used: rows.len(),
+            })?;
         fits.push((sol[0], sol[1], rows.len()));
     }
     let k = fits.iter().map(|f| f.1).sum::<f64>() / fits.len().max(1) as f64;

@@ -17,6 +17,9 @@ pub fn plain() -> Preset {
     a.encoder.quantize_scale = false;
     a.servo.vff = 0.0;
     a.servo.aff = 0.0;
+    a.backlash.enabled = false;
+    a.quadrant.enabled = false;
+    a.thermal.enabled = false;
     a.initial_pos_mm = 0.0;
     p.nc.accdec.kind = AccDecKind::None;
     p.nc.initial_mode = Mode::Normal;

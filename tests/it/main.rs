@@ -2,6 +2,7 @@
 
 mod cli;
 mod common;
+mod comp;
 mod nc;
 mod physics;
 mod presets;

@@ -271,7 +271,6 @@ fn compensation_slots_reach_the_command_and_the_torque() {
         fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
             self
         }
-
     }
     struct Tff;
     impl ServoComp for Tff {
@@ -301,7 +300,6 @@ fn compensation_slots_reach_the_command_and_the_torque() {
         fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
             self
         }
-
     }
     let p = plain();
     let mut m = Machine::new(&p, &[("t".into(), "G04 P500\nM30\n".into())]).expect("machine");

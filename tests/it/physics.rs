@@ -280,7 +280,9 @@ fn crossbeam_sag_matches_the_beam_formula() {
 
 #[test]
 fn sag_is_largest_with_the_post_at_midspan() {
-    let lp = axisbench::preset::load_embedded("vertical_lathe_crossbeam.ron").expect("preset");
+    let mut lp = axisbench::preset::load_embedded("vertical_lathe_crossbeam.ron").expect("preset");
+    lp.preset.cross.clear();
+    lp.preset.scenario.programs[1] = "vertical_lathe_right_traverse.ngc".into();
     let mut m = axisbench::Machine::from_loaded(&lp).expect("machine");
     m.set_recording(true);
     m.run(600.0);
