@@ -114,7 +114,10 @@ pub struct StrokeFriction {
     recovery_m: f64,
     /// Short-stroke level n.
     pub level: f64,
-    level_at_rev: f64,
+    /// e^(−n/growth), kept up to date with n.
+    decay: f64,
+    /// Distance beyond the pitch already applied to the recovery on this stroke.
+    beyond_done_m: f64,
     dir: f64,
     last_rev_m: Option<f64>,
     /// Current friction multiplier.
@@ -131,7 +134,8 @@ impl StrokeFriction {
             growth_strokes: s.growth_strokes,
             recovery_m: s.recovery_mm * 1e-3,
             level: 0.0,
-            level_at_rev: 0.0,
+            decay: 1.0,
+            beyond_done_m: 0.0,
             dir: 0.0,
             last_rev_m: None,
             scale: 1.0,
@@ -145,12 +149,24 @@ impl StrokeFriction {
             && let Some(prev) = self.last_rev_m
         {
             let beyond = (x_m - prev).abs() - self.pitch_m;
-            if beyond > 0.0 {
-                self.level = self.level_at_rev * (-beyond / self.recovery_m).exp();
+            if beyond > self.beyond_done_m {
+                let u = (beyond - self.beyond_done_m.max(0.0)) / self.recovery_m;
+                self.beyond_done_m = beyond;
+                // Per step u is ~1e-3, so the series is exact to ~1e-12 and avoids two exp
+                // calls every T3 on a long stroke; each reversal recomputes exactly.
+                let f = small_exp(-u);
+                let g = self.level / self.growth_strokes;
+                self.level *= f;
+                self.decay *= small_exp(g * (1.0 - f));
                 if self.level < 1e-6 {
                     self.level = 0.0;
+                    self.decay = 1.0;
                 }
-                self.update_scale();
+                self.scale = if self.enabled {
+                    1.0 + self.rise_ratio * (1.0 - self.decay)
+                } else {
+                    1.0
+                };
             }
         }
         if v_mps.abs() < REVERSAL_SPEED_MPS {
@@ -167,14 +183,15 @@ impl StrokeFriction {
             self.level += 1.0;
         }
         self.last_rev_m = Some(x_m);
-        self.level_at_rev = self.level;
+        self.beyond_done_m = 0.0;
         self.dir = dir;
         self.update_scale();
     }
 
     fn update_scale(&mut self) {
+        self.decay = (-self.level / self.growth_strokes).exp();
         self.scale = if self.enabled {
-            1.0 + self.rise_ratio * (1.0 - (-self.level / self.growth_strokes).exp())
+            1.0 + self.rise_ratio * (1.0 - self.decay)
         } else {
             1.0
         };
@@ -398,7 +415,7 @@ impl AxisPlant {
         let (dir, last) = (self.stroke.dir, self.stroke.last_rev_m);
         self.stroke = StrokeFriction::from_params(a);
         self.stroke.level = level;
-        self.stroke.level_at_rev = level;
+        self.stroke.update_scale();
         self.stroke.dir = dir;
         self.stroke.last_rev_m = last;
         // The screw keeps its temperature across a parameter edit; only `new` starts cold.
@@ -554,6 +571,16 @@ fn quantize(x: f64, q: Option<(f64, f64)>) -> f64 {
     match q {
         Some((q, inv)) => f64::floor(x * inv + 0.5) * q,
         None => x,
+    }
+}
+
+/// e^x for |x| ≲ 0.01 by its series to third order; exact libm exp beyond.
+#[inline]
+fn small_exp(x: f64) -> f64 {
+    if x.abs() < 0.01 {
+        1.0 + x * (1.0 + x * (0.5 + x * (1.0 / 6.0)))
+    } else {
+        x.exp()
     }
 }
 
