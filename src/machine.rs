@@ -329,18 +329,7 @@ impl Machine {
             self.comp_temp[i] = a.plant.thermal.temp_c;
         }
         self.comp_prev.clone_from(&self.comp_cmd);
-        self.comp_out.iter_mut().for_each(|o| *o = 0.0);
-        let ctx = PosCompCtx {
-            t_s: 0.0,
-            period_s: self.t3_s * n23 as f64,
-            cmd_m: &self.comp_cmd,
-            prev_cmd_m: &self.comp_prev,
-            fb_m: &self.comp_fb,
-            temps_c: &self.comp_temp,
-        };
-        for c in self.comps.position.iter_mut() {
-            c.step(&ctx, &mut self.comp_out);
-        }
+        self.run_position_comps(0.0, self.t3_s * n23 as f64);
         for (i, a) in self.axes.iter_mut().enumerate() {
             let off = self.comp_out[i];
             if off == 0.0 {
@@ -569,24 +558,7 @@ impl Machine {
                     }
                 };
             }
-            self.comp_out.iter_mut().for_each(|o| *o = 0.0);
-            let ctx = PosCompCtx {
-                t_s: t + g as f64 * self.t3_s,
-                period_s: period,
-                cmd_m: &self.comp_cmd,
-                prev_cmd_m: &self.comp_prev,
-                fb_m: &self.comp_fb,
-                temps_c: &self.comp_temp,
-            };
-            for c in self.comps.position.iter_mut() {
-                c.step(&ctx, &mut self.comp_out);
-                // A measuring cycle (touch probe on the reference point) reads the real
-                // displacement there; only the plant knows it.
-                if let Some((axis, x_m)) = c.measurement_request() {
-                    let real = self.axes[axis].plant.thermal.elongation_m(x_m);
-                    c.measured(ctx.t_s, real);
-                }
-            }
+            self.run_position_comps(t + g as f64 * self.t3_s, period);
             for (i, a) in self.axes.iter_mut().enumerate() {
                 let raw = self.comp_cmd[i];
                 let comp = raw + self.comp_out[i];
@@ -614,6 +586,29 @@ impl Machine {
             a.seg_vel_mps = v;
             a.prev_raw_m = a.buf_raw[n23 - 1];
             a.prev_comp_m = a.buf_comp[n23 - 1];
+        }
+    }
+
+    /// One position-command generation: every position compensation adds its correction to
+    /// `comp_out` for the command in `comp_cmd`, and any measurement asked for is taken.
+    fn run_position_comps(&mut self, t_s: f64, period_s: f64) {
+        self.comp_out.iter_mut().for_each(|o| *o = 0.0);
+        let ctx = PosCompCtx {
+            t_s,
+            period_s,
+            cmd_m: &self.comp_cmd,
+            prev_cmd_m: &self.comp_prev,
+            fb_m: &self.comp_fb,
+            temps_c: &self.comp_temp,
+        };
+        for c in self.comps.position.iter_mut() {
+            c.step(&ctx, &mut self.comp_out);
+            // A measuring cycle (touch probe on the reference point) reads the real
+            // displacement there; only the plant knows it.
+            if let Some((axis, x_m)) = c.measurement_request() {
+                let real = self.axes[axis].plant.thermal.elongation_m(x_m);
+                c.measured(ctx.t_s, real);
+            }
         }
     }
 

@@ -8,15 +8,10 @@ use crate::comp::thermal::{self, Step1, Thermal};
 use crate::machine::{Machine, MachineError};
 use crate::preset::Preset;
 
-/// The preset with every compensation switched off.
+/// The preset with every compensation switched off and a plain scenario (no PLC events,
+/// no fixed duration, every sample traced), as a measuring cycle needs it.
 pub fn uncompensated(p: &Preset) -> Preset {
-    let mut q = p.clone();
-    for a in &mut q.axes {
-        a.backlash.enabled = false;
-        a.quadrant.enabled = false;
-        a.thermal.enabled = false;
-    }
-    q.cross.clear();
+    let mut q = uncompensated_scenario(p);
     q.scenario.plc_events.clear();
     q.scenario.duration_s = None;
     q.scenario.trace_every = 1;
