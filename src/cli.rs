@@ -42,6 +42,12 @@ macro_rules! say_raw {
 pub struct Cli {
     #[command(subcommand)]
     pub command: Option<Command>,
+    /// With no command: open the workbench on this preset instead of the saved session.
+    #[arg(long, global = false)]
+    pub preset: Option<PathBuf>,
+    /// With no command: start the model running.
+    #[arg(long)]
+    pub run: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -91,6 +97,9 @@ pub enum Command {
         /// Axis-steps per configuration.
         #[arg(long, default_value_t = 6_000_000)]
         steps: u64,
+        /// Measure the workbench's frame time instead (headless, plots full).
+        #[arg(long)]
+        frames: Option<usize>,
     },
 }
 
@@ -165,7 +174,7 @@ pub enum CalibrateCmd {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        None => open_gui(),
+        None => open_gui(cli.preset, cli.run),
         Some(Command::Simulate {
             preset,
             program,
@@ -186,11 +195,20 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Measure { what }) => measure(what),
         Some(Command::Calibrate { step }) => calibrate(step),
         Some(Command::Validate { presets }) => validate(&presets),
-        Some(Command::Bench { steps }) => bench(steps),
+        Some(Command::Bench {
+            frames: Some(n), ..
+        }) => {
+            let (mean, p99, max) = crate::app::bench_frames(n)?;
+            say!(
+                "frames={n} window=10s rate=8kHz plots=4 frame_ms_mean={mean:.3} frame_ms_p99={p99:.3} frame_ms_max={max:.3}"
+            );
+            Ok(())
+        }
+        Some(Command::Bench { steps, .. }) => bench(steps),
     }
 }
 
-fn open_gui() -> Result<()> {
+fn open_gui(preset: Option<PathBuf>, run: bool) -> Result<()> {
     let has_display =
         std::env::var_os("DISPLAY").is_some() || std::env::var_os("WAYLAND_DISPLAY").is_some();
     if !has_display {
@@ -202,10 +220,7 @@ fn open_gui() -> Result<()> {
              axisbench --help"
         );
     }
-    bail!(
-        "the workbench GUI is not part of this build yet; use the command line:\n  \
-         axisbench simulate --preset presets/default.ron --out trace.csv\n  axisbench --help"
-    )
+    crate::app::run(preset, run)
 }
 
 /// Loads a preset and applies `--set` overrides in order.

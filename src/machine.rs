@@ -348,6 +348,100 @@ impl Machine {
         self.update_sag();
     }
 
+    /// Live edit: takes the parameters of `p` from the next control period on, keeping the
+    /// machine's state (positions, temperatures, pending backlash parts, quadrant N…). The
+    /// structure (axes, channels, programs) must be the same; a structural change needs a new
+    /// machine. The set of installed compensations is rebuilt only when one is switched on or
+    /// off; otherwise each keeps its state and takes the new parameters.
+    pub fn apply_params(&mut self, p: &Preset) -> Result<(), MachineError> {
+        let errors = p.validate();
+        if !errors.is_empty() {
+            return Err(PresetError::Invalid {
+                file: p.name.clone(),
+                errors,
+            }
+            .into());
+        }
+        let same = p.axes.len() == self.preset.axes.len()
+            && p.axes
+                .iter()
+                .zip(&self.preset.axes)
+                .all(|(a, b)| a.name == b.name && a.channel == b.channel && a.letter == b.letter)
+            && p.scenario.programs.len() == self.preset.scenario.programs.len()
+            && p.timing == self.preset.timing;
+        if !same {
+            return Err(MachineError::Structure(
+                "axes, channels or periods changed: reset the machine to apply".into(),
+            ));
+        }
+        for (a, params) in self.axes.iter_mut().zip(&p.axes) {
+            a.servo.retune(params);
+            a.plant.retune(params);
+            a.f_per_t = force_per_torque(params.drive.lead_mm * 1e-3);
+            a.lead_m = params.drive.lead_mm * 1e-3;
+        }
+        for ch in &mut self.channels {
+            ch.set_accdec(p.nc.accdec.clone());
+        }
+        self.beam = Beam::new(&p.crossbeam, |n| self.axes.iter().position(|a| a.name == n));
+        let enabled = |q: &Preset| -> Vec<bool> {
+            q.axes
+                .iter()
+                .flat_map(|a| [a.backlash.enabled, a.thermal.enabled, a.quadrant.enabled])
+                .chain([q.cross.iter().any(|t| t.enabled)])
+                .collect()
+        };
+        let rebuild = enabled(p) != enabled(&self.preset) || p.cross != self.preset.cross;
+        let old_plc = std::mem::replace(&mut self.preset, p.clone());
+        if old_plc.scenario.plc_events != p.scenario.plc_events {
+            let t = self.t_s();
+            self.plc_next = p
+                .scenario
+                .plc_events
+                .iter()
+                .take_while(|e| e.t_s <= t)
+                .count();
+        }
+        if rebuild {
+            let stack = crate::comp::build(p);
+            self.comp_counts = stack
+                .position
+                .iter()
+                .map(|c| c.signals().len())
+                .chain(stack.servo.iter().map(|c| c.signals().len()))
+                .collect();
+            self.comps = stack;
+            let on = self.rec.is_some();
+            self.set_recording(on);
+        } else {
+            for (i, a) in p.axes.iter().enumerate() {
+                for b in self.comps.find_mut::<crate::comp::backlash::Backlash>() {
+                    if b.axis() == i {
+                        b.p = a.backlash.clone();
+                    }
+                }
+                for q in self.comps.find_mut::<crate::comp::quadrant::Quadrant>() {
+                    if crate::comp::ServoComp::axis(q) == i {
+                        q.p = a.quadrant.clone();
+                    }
+                }
+                for t in self.comps.find_mut::<crate::comp::thermal::Thermal>() {
+                    if t.axis() == i {
+                        t.retune(a.thermal.clone());
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A PLC mode request now (the GUI's PLC switch), for `channel`.
+    pub fn plc_request(&mut self, channel: usize, mode: Mode) {
+        if let Some(ch) = self.channels.get_mut(channel) {
+            ch.request_mode(mode);
+        }
+    }
+
     pub fn comps(&self) -> &CompStack {
         &self.comps
     }

@@ -213,6 +213,10 @@ impl Backlash {
         }
     }
 
+    pub fn axis(&self) -> usize {
+        self.axis
+    }
+
     /// The value the accumulated correction settles at while moving in `dir`.
     pub fn target_m(&self, dir: i8) -> f64 {
         if dir == 0 || dir == self.ref_dir {

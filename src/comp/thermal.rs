@@ -296,6 +296,10 @@ impl Thermal {
         }
     }
 
+    pub fn axis(&self) -> usize {
+        self.axis
+    }
+
     /// Adopts edited parameters, keeping the predictor state and the measurement history.
     pub fn retune(&mut self, p: ThermalParams) {
         self.judge = Judge::new(&p);
@@ -399,6 +403,8 @@ impl PositionComp for Thermal {
         ];
         if !self.p.e_ref.is_empty() {
             v.push(s("thermal_e_ref", ""));
+            v.push(s("thermal_band_hi", ""));
+            v.push(s("thermal_band_lo", ""));
         }
         v
     }
@@ -415,8 +421,11 @@ impl PositionComp for Thermal {
             _ => f64::NAN,
         };
         out[6] = self.measurements as f64;
-        if let Some(o) = out.get_mut(7) {
-            *o = crate::table::interp(&self.p.e_ref, self.t_now_s);
+        if out.len() >= 10 {
+            let e_ref = crate::table::interp(&self.p.e_ref, self.t_now_s);
+            out[7] = e_ref;
+            out[8] = e_ref + self.p.em;
+            out[9] = e_ref - self.p.em;
         }
     }
 

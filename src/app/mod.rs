@@ -1,0 +1,907 @@
+//! The tuning workbench: the live machine on the left (scenario, program, run controls and
+//! every parameter), linked plots in the middle. A thin layer over the model: every edit
+//! goes through `Preset::with_override` (the same validation as files and the CLI) and
+//! `Machine::apply_params`, so it takes effect from the next control period.
+
+mod edit;
+mod live;
+mod plots;
+mod session;
+#[cfg(test)]
+mod tests;
+
+use eframe::egui;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context as _, Result};
+use axisbench::analysis;
+use axisbench::preset::{self, Preset, SHIPPED_PRESETS};
+use axisbench::{Machine, Trace};
+
+pub use live::Live;
+
+/// What a trainer gets told when loading each shipped scenario.
+pub const SCENARIO_NOTES: &[(&str, &str)] = &[
+    (
+        "default.ron",
+        "A horizontal X axis with 8 µm backlash and Coulomb friction. Watch x.err at the reversals: without backlash compensation the error steps by the lost motion; with it (Backlash, lump) the step is gone.",
+    ),
+    (
+        "vertical_z_gravity.ron",
+        "A vertical Z axis whose weight keeps the load on one flank. Up->down and down->up reversals lose motion differently, which is why seed 000 lets each direction output the backlash correction its own way.",
+    ),
+    (
+        "short_stroke_quadrant.ron",
+        "Seed 003's workpiece: after a long stroke (A), several 10 mm strokes (B), then 40 mm (C). Friction rises on short strokes, so a fixed torque feed-forward leaves larger glitches at B; the adaptive one grows with N.",
+    ),
+    (
+        "thermal_warmup.ron",
+        "Two hours of strokes from cold (run at 1000×). The screw heats and grows from its fixed bearing. The thermal correction scales its prediction by E and measures again when E has drifted by Em.",
+    ),
+    (
+        "vertical_lathe_crossbeam.ron",
+        "A vertical lathe: two tool posts on one crossbeam, which sags under them. The cross tables add the measured sag to each Z as a function of the posts' X positions.",
+    ),
+    (
+        "xy_circle.ron",
+        "A circle test, as a ballbar shows it: the radial error magnified on the polar plot. Friction leaves quadrant glitches where an axis reverses; T1 = 4 ms leaves chords in normal mode.",
+    ),
+    (
+        "emps.ron",
+        "The EMPS rig as published (no Coulomb friction): the nominal model the sim-to-real diagnosis starts from.",
+    ),
+];
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tab {
+    Time,
+    Circle,
+    Sag,
+    Compare,
+}
+
+/// Result of an A/B run.
+pub struct Compare {
+    pub axis: String,
+    pub reference: String,
+    /// (label, t, err mm) for A and B.
+    pub runs: Vec<(String, Vec<f64>, Vec<f64>)>,
+    /// Rows: (label, peak |err| µm, RMS err µm, worst +->- change µm, worst -->+ change µm).
+    pub table: Vec<(String, f64, f64, f64, f64)>,
+}
+
+pub struct Workbench {
+    pub preset: Preset,
+    /// The preset file being edited; None for an embedded preset.
+    pub path: Option<PathBuf>,
+    /// Name of the shipped preset the session came from (programs resolve from it).
+    pub origin: String,
+    /// RON of the last saved/loaded state, for the unsaved-changes marker.
+    pub saved_ron: String,
+    /// Program text per channel, and the editor buffer of the shown channel.
+    pub programs: Vec<(String, String)>,
+    pub program_buf: String,
+    pub program_channel: usize,
+    pub program_error: Option<String>,
+    pub live: Live,
+    pub axis_sel: usize,
+    /// Text buffers of the numeric fields, by preset path.
+    pub fields: BTreeMap<String, String>,
+    /// Validation messages shown next to their field, by preset path.
+    pub field_errors: BTreeMap<String, String>,
+    pub window_s: f64,
+    pub tab: Tab,
+    pub compare: Option<Compare>,
+    pub compare_ref_saved: bool,
+    pub loaded_trace: Option<(String, Trace)>,
+    pub recent: Vec<PathBuf>,
+    pub status: String,
+    pub path_input: String,
+    pub magnify: f64,
+    pub sag_points: usize,
+    /// The cross-table point being dragged on the sag plot: (table, point).
+    pub sag_drag: Option<(usize, usize)>,
+    pub step1_interval_s: f64,
+    pub step2_at_s: f64,
+    pub step_result: Option<String>,
+    /// Where the session is autosaved; None in tests.
+    pub session_file: Option<PathBuf>,
+    last_autosave: std::time::Instant,
+    last_session: String,
+    /// Outcome of the last plot PNG export, set by the screenshot callback.
+    png_msg: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+    plot_rects: BTreeMap<String, egui::Rect>,
+}
+
+impl Workbench {
+    /// A workbench on a shipped preset, without autosave (tests, benchmarks).
+    pub fn new_embedded(name: &str) -> Result<Workbench> {
+        let lp = preset::load_embedded(name)?;
+        let programs = lp
+            .preset
+            .scenario
+            .programs
+            .iter()
+            .map(|p| Ok((p.clone(), lp.program_text(p)?)))
+            .collect::<Result<Vec<_>>>()?;
+        Workbench::with(lp.preset, programs, None, name.to_owned())
+    }
+
+    fn with(
+        preset: Preset,
+        programs: Vec<(String, String)>,
+        path: Option<PathBuf>,
+        origin: String,
+    ) -> Result<Workbench> {
+        let machine = Machine::new(&preset, &programs)?;
+        let saved_ron = preset.to_ron()?;
+        Ok(Workbench {
+            program_buf: programs.first().map(|p| p.1.clone()).unwrap_or_default(),
+            preset,
+            path,
+            origin,
+            saved_ron,
+            programs,
+            program_channel: 0,
+            program_error: None,
+            live: Live::new(machine),
+            axis_sel: 0,
+            fields: BTreeMap::new(),
+            field_errors: BTreeMap::new(),
+            window_s: 10.0,
+            tab: Tab::Time,
+            compare: None,
+            compare_ref_saved: false,
+            loaded_trace: None,
+            recent: vec![],
+            status: String::new(),
+            path_input: String::new(),
+            magnify: 200.0,
+            sag_points: 9,
+            sag_drag: None,
+            step1_interval_s: 120.0,
+            step2_at_s: 600.0,
+            step_result: None,
+            session_file: None,
+            last_autosave: std::time::Instant::now(),
+            last_session: String::new(),
+            png_msg: Default::default(),
+            plot_rects: BTreeMap::new(),
+        })
+    }
+
+    /// The workbench as the binary opens it: the autosaved session if there is one, else
+    /// the embedded default preset.
+    pub fn open_session() -> Result<Workbench> {
+        let file = session::session_file();
+        if let Some(f) = &file
+            && let Some(mut wb) = session::restore(f)
+        {
+            wb.status = format!("session restored from {}", f.display());
+            wb.session_file = file;
+            return Ok(wb);
+        }
+        let mut wb = Workbench::new_embedded("default.ron")?;
+        wb.session_file = file;
+        Ok(wb)
+    }
+
+    pub fn dirty(&self) -> bool {
+        self.preset
+            .to_ron()
+            .map(|r| r != self.saved_ron)
+            .unwrap_or(true)
+    }
+
+    pub fn axis_name(&self) -> String {
+        self.preset
+            .axes
+            .get(self.axis_sel)
+            .map_or_else(|| "x".into(), |a| a.name.clone())
+    }
+
+    /// Applies one edit by preset path. On error the previous value stays in force and the
+    /// message is kept for the field.
+    pub fn set(&mut self, path: &str, value: &str) -> bool {
+        match self.preset.with_override(path, value) {
+            Ok(p) => {
+                self.field_errors.remove(path);
+                let applied = self.live.lock().machine.apply_params(&p);
+                self.preset = p;
+                if let Err(e) = applied {
+                    // A structural change: start the machine again with the new settings.
+                    self.status = format!("{e}; the machine was reset");
+                    self.reset();
+                }
+                true
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                let short = msg
+                    .split_once(": ")
+                    .map_or(msg.as_str(), |(_, r)| r)
+                    .to_owned();
+                self.field_errors.insert(path.to_owned(), short);
+                false
+            }
+        }
+    }
+
+    /// Rebuilds the machine from the current preset and programs (Reset).
+    pub fn reset(&mut self) {
+        match Machine::new(&self.preset, &self.programs) {
+            Ok(m) => {
+                let running = self.live.lock().running;
+                self.live.replace(m);
+                self.live.lock().running = running;
+            }
+            Err(e) => self.status = format!("cannot reset: {e}"),
+        }
+    }
+
+    /// Takes the program editor's text for the shown channel; a bad program keeps the old
+    /// one and shows the error with its line and column.
+    pub fn apply_program(&mut self) {
+        let mut progs = self.programs.clone();
+        if let Some(p) = progs.get_mut(self.program_channel) {
+            p.1 = self.program_buf.clone();
+        }
+        match Machine::new(&self.preset, &progs) {
+            Ok(m) => {
+                self.programs = progs;
+                self.program_error = None;
+                self.live.replace(m);
+                self.status = "program applied; machine reset".into();
+            }
+            Err(e) => self.program_error = Some(e.to_string()),
+        }
+    }
+
+    /// Loads a shipped scenario (preset, programs and explanation).
+    pub fn load_scenario(&mut self, name: &str) {
+        match Workbench::new_embedded(name) {
+            Ok(wb) => self.adopt(wb, format!("loaded scenario {name}")),
+            Err(e) => self.status = format!("cannot load {name}: {e:#}"),
+        }
+    }
+
+    /// Opens a preset file (and its programs, relative to it).
+    pub fn open_file(&mut self, path: PathBuf) {
+        let r = (|| -> Result<Workbench> {
+            let lp = preset::load(&path.display().to_string())?;
+            let programs = lp
+                .preset
+                .scenario
+                .programs
+                .iter()
+                .map(|p| Ok((p.clone(), lp.program_text(p)?)))
+                .collect::<Result<Vec<_>>>()?;
+            Workbench::with(
+                lp.preset,
+                programs,
+                Some(path.clone()),
+                path.display().to_string(),
+            )
+        })();
+        match r {
+            Ok(wb) => {
+                self.add_recent(path.clone());
+                self.adopt(wb, format!("opened {}", path.display()));
+            }
+            Err(e) => self.status = format!("cannot open {}: {e:#}", path.display()),
+        }
+    }
+
+    fn adopt(&mut self, wb: Workbench, status: String) {
+        let running = self.live.lock().running;
+        match Machine::new(&wb.preset, &wb.programs) {
+            Ok(m) => self.live.replace(m),
+            Err(e) => {
+                self.status = format!("cannot load: {e}");
+                return;
+            }
+        }
+        self.live.lock().running = running;
+        self.preset = wb.preset;
+        self.path = wb.path;
+        self.origin = wb.origin;
+        self.saved_ron = wb.saved_ron;
+        self.programs = wb.programs;
+        self.program_buf = self
+            .programs
+            .first()
+            .map(|p| p.1.clone())
+            .unwrap_or_default();
+        self.program_channel = 0;
+        self.program_error = None;
+        self.axis_sel = 0;
+        self.fields.clear();
+        self.field_errors.clear();
+        self.compare = None;
+        self.status = status;
+    }
+
+    /// Saves the preset (atomically) to `path`, with its programs next to it.
+    pub fn save_to(&mut self, path: PathBuf) {
+        let r = (|| -> Result<()> {
+            let ron = self.preset.to_ron()?;
+            axisbench::fsutil::write_atomic(&path, ron.as_bytes())
+                .with_context(|| format!("{}: cannot write", path.display()))?;
+            let dir = path.parent().map(PathBuf::from).unwrap_or_default();
+            for (name, text) in &self.programs {
+                let p = dir.join(name);
+                axisbench::fsutil::write_atomic(&p, text.as_bytes())
+                    .with_context(|| format!("{}: cannot write", p.display()))?;
+            }
+            Ok(())
+        })();
+        match r {
+            Ok(()) => {
+                self.saved_ron = self.preset.to_ron().unwrap_or_default();
+                self.path = Some(path.clone());
+                self.add_recent(path.clone());
+                self.status = format!("saved {}", path.display());
+            }
+            Err(e) => self.status = format!("not saved: {e:#}"),
+        }
+    }
+
+    fn add_recent(&mut self, p: PathBuf) {
+        self.recent.retain(|q| *q != p);
+        self.recent.insert(0, p);
+        self.recent.truncate(8);
+    }
+
+    /// Runs the program twice headless, with the current settings and with the reference
+    /// (compensation off, or the last saved preset), and fills the compare table.
+    pub fn run_compare(&mut self) {
+        let axis = self.axis_name();
+        let reference = if self.compare_ref_saved {
+            match Preset::from_ron(&self.saved_ron, "saved") {
+                Ok(p) => ("last saved preset".to_owned(), p),
+                Err(e) => {
+                    self.status = format!("cannot compare: {e}");
+                    return;
+                }
+            }
+        } else {
+            (
+                "compensation off".to_owned(),
+                axisbench::comp::measure::uncompensated_scenario(&self.preset),
+            )
+        };
+        let mut runs = vec![];
+        let mut table = vec![];
+        for (label, p) in [
+            ("A: current".to_owned(), self.preset.clone()),
+            (format!("B: {}", reference.0), reference.1),
+        ] {
+            let mut m = match Machine::new(&p, &self.programs) {
+                Ok(m) => m,
+                Err(e) => {
+                    self.status = format!("cannot compare: {e}");
+                    return;
+                }
+            };
+            m.run(4.0 * 3600.0);
+            let sums = analysis::summarize(&m.trace);
+            if let Some(s) = sums.iter().find(|s| s.axis == axis) {
+                // Directions are "+→−" and "−→+": the first character tells them apart.
+                let worst = |plus_to_minus: bool| {
+                    s.reversals
+                        .iter()
+                        .filter(|r| r.direction.starts_with('+') == plus_to_minus)
+                        .map(|r| r.peak_err_mm * 1e3)
+                        .fold(0.0, f64::max)
+                };
+                table.push((
+                    label.clone(),
+                    s.max_err_mm * 1e3,
+                    s.rms_err_mm * 1e3,
+                    worst(true),
+                    worst(false),
+                ));
+            }
+            let t = m.trace.t().to_vec();
+            let err = m
+                .trace
+                .values(&format!("{axis}.err"))
+                .map(<[f64]>::to_vec)
+                .unwrap_or_default();
+            runs.push((label, t, err));
+        }
+        self.compare = Some(Compare {
+            axis,
+            reference: reference.0,
+            runs,
+            table,
+        });
+        self.tab = Tab::Compare;
+    }
+
+    /// One frame of the workbench.
+    pub fn ui(&mut self, ui: &mut egui::Ui) {
+        self.menu_ui(ui);
+        egui::Panel::bottom("status").show(ui, |ui| {
+            ui.horizontal(|ui| {
+                let (t, mode, running) = {
+                    let s = self.live.lock();
+                    (
+                        s.machine.t_s(),
+                        s.machine.channels.first().map(|c| c.mode),
+                        s.running,
+                    )
+                };
+                ui.label(format!(
+                    "t = {t:.3} s   mode: {}   {}",
+                    match mode {
+                        Some(preset::Mode::Direct) => "direct command",
+                        _ => "normal",
+                    },
+                    if running { "running" } else { "paused" }
+                ));
+                ui.separator();
+                ui.label(&self.status);
+            });
+        });
+        egui::Panel::left("machine")
+            .default_size(380.0)
+            .resizable(true)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| {
+                    self.run_controls_ui(ui);
+                    ui.separator();
+                    edit::sections_ui(self, ui);
+                });
+            });
+        egui::CentralPanel::default().show(ui, |ui| {
+            ui.horizontal(|ui| {
+                for (tab, label) in [
+                    (Tab::Time, "Time plots"),
+                    (Tab::Circle, "Circle (XY)"),
+                    (Tab::Sag, "Sag profile"),
+                    (Tab::Compare, "A/B compare"),
+                ] {
+                    ui.selectable_value(&mut self.tab, tab, label);
+                }
+            });
+            ui.separator();
+            match self.tab {
+                Tab::Time => plots::time_plots_ui(self, ui),
+                Tab::Circle => plots::circle_ui(self, ui),
+                Tab::Sag => plots::sag_ui(self, ui),
+                Tab::Compare => plots::compare_ui(self, ui),
+            }
+        });
+        self.handle_screenshot(ui.ctx());
+        if self.live.lock().running {
+            ui.ctx().request_repaint();
+        }
+        self.autosave();
+    }
+
+    fn menu_ui(&mut self, ui: &mut egui::Ui) {
+        egui::Panel::top("menu").show(ui, |ui| {
+            egui::MenuBar::new().ui(ui, |ui| {
+                ui.menu_button("File", |ui| {
+                    if ui.button("Open preset…").clicked() {
+                        if let Some(p) = rfd::FileDialog::new()
+                            .add_filter("RON preset", &["ron"])
+                            .pick_file()
+                        {
+                            self.open_file(p);
+                        } else {
+                            self.status =
+                                "no file chosen (or no file dialog here: use the Path field)"
+                                    .into();
+                        }
+                        ui.close();
+                    }
+                    if ui.button("Save").clicked() {
+                        match self.path.clone() {
+                            Some(p) => self.save_to(p),
+                            None => self.save_as_dialog(),
+                        }
+                        ui.close();
+                    }
+                    if ui.button("Save as…").clicked() {
+                        self.save_as_dialog();
+                        ui.close();
+                    }
+                    ui.menu_button("Recent", |ui| {
+                        for p in self.recent.clone() {
+                            if ui.button(p.display().to_string()).clicked() {
+                                self.open_file(p);
+                                ui.close();
+                            }
+                        }
+                    });
+                    ui.separator();
+                    if ui.button("Record trace to CSV…").clicked() {
+                        if let Some(p) = rfd::FileDialog::new()
+                            .add_filter("trace", &["csv"])
+                            .save_file()
+                        {
+                            self.record_csv(p);
+                        }
+                        ui.close();
+                    }
+                    if ui.button("Open trace CSV…").clicked() {
+                        if let Some(p) = rfd::FileDialog::new()
+                            .add_filter("trace", &["csv"])
+                            .pick_file()
+                        {
+                            self.open_trace(p);
+                        }
+                        ui.close();
+                    }
+                });
+                ui.menu_button("Scenarios", |ui| {
+                    for name in SHIPPED_PRESETS {
+                        let note = SCENARIO_NOTES
+                            .iter()
+                            .find(|(n, _)| n == name)
+                            .map_or("", |n| n.1);
+                        if ui.button(*name).on_hover_text(note).clicked() {
+                            self.load_scenario(name);
+                            ui.close();
+                        }
+                    }
+                });
+                let title = format!(
+                    "axisbench — {}{}",
+                    self.path
+                        .as_ref()
+                        .map_or(self.origin.clone(), |p| p.display().to_string()),
+                    if self.dirty() {
+                        " * unsaved changes"
+                    } else {
+                        ""
+                    }
+                );
+                ui.label(title);
+            });
+        });
+    }
+
+    fn save_as_dialog(&mut self) {
+        if let Some(p) = rfd::FileDialog::new()
+            .add_filter("RON preset", &["ron"])
+            .save_file()
+        {
+            self.save_to(p);
+        } else {
+            self.status = "no file chosen (or no file dialog here: use the Path field)".into();
+        }
+    }
+
+    pub fn record_csv(&mut self, path: PathBuf) {
+        let tr = self.live.lock().ring.to_trace();
+        match tr.write_csv(&path) {
+            Ok(()) => self.status = format!("trace written to {}", path.display()),
+            Err(e) => self.status = e.to_string(),
+        }
+    }
+
+    pub fn open_trace(&mut self, path: PathBuf) {
+        match Trace::read_csv(&path, None) {
+            Ok(t) => {
+                self.status = format!("opened trace {} ({} samples)", path.display(), t.len());
+                self.loaded_trace = Some((path.display().to_string(), t));
+            }
+            Err(e) => self.status = e.to_string(),
+        }
+    }
+
+    fn run_controls_ui(&mut self, ui: &mut egui::Ui) {
+        ui.heading("Machine");
+        if let Some((_, note)) = SCENARIO_NOTES.iter().find(|(n, _)| *n == self.origin) {
+            ui.label(egui::RichText::new(*note).italics());
+        }
+        ui.horizontal(|ui| {
+            let mut chosen = None;
+            egui::ComboBox::from_label("Scenario")
+                .selected_text(&self.origin)
+                .show_ui(ui, |ui| {
+                    for name in SHIPPED_PRESETS {
+                        if ui.selectable_label(self.origin == *name, *name).clicked() {
+                            chosen = Some(*name);
+                        }
+                    }
+                });
+            if let Some(n) = chosen {
+                self.load_scenario(n);
+            }
+        });
+        ui.horizontal(|ui| {
+            let label = ui.label("Path:");
+            ui.add(egui::TextEdit::singleline(&mut self.path_input).desired_width(160.0))
+                .labelled_by(label.id);
+            if ui.button("Open path").clicked() {
+                self.open_file(PathBuf::from(self.path_input.trim()));
+            }
+            if ui.button("Save to path").clicked() {
+                self.save_to(PathBuf::from(self.path_input.trim()));
+            }
+        });
+        ui.horizontal(|ui| {
+            if ui.button("Record trace CSV to path").clicked() {
+                self.record_csv(PathBuf::from(self.path_input.trim()));
+            }
+            if ui.button("Open trace CSV from path").clicked() {
+                self.open_trace(PathBuf::from(self.path_input.trim()));
+            }
+        });
+        ui.horizontal(|ui| {
+            let running = self.live.lock().running;
+            if ui.add_enabled(!running, egui::Button::new("Run")).clicked() {
+                self.live.lock().running = true;
+            }
+            if ui
+                .add_enabled(running, egui::Button::new("Pause"))
+                .clicked()
+            {
+                self.live.lock().running = false;
+            }
+            if ui.button("Step").on_hover_text("one T2 period").clicked() {
+                let n = self.live.lock().machine.n23 as u64;
+                self.live.advance(n);
+            }
+            if ui.button("Reset").clicked() {
+                self.reset();
+            }
+        });
+        ui.horizontal(|ui| {
+            let label = ui.label("Speed:");
+            let mut speed = self.live.lock().speed;
+            let r = ui
+                .add(
+                    egui::Slider::new(&mut speed, 0.1..=1000.0)
+                        .logarithmic(true)
+                        .suffix("×"),
+                )
+                .labelled_by(label.id);
+            if r.changed() {
+                self.live.lock().speed = speed;
+            }
+        });
+        ui.horizontal(|ui| {
+            let label = ui.label("Window:");
+            ui.add(egui::Slider::new(&mut self.window_s, 1.0..=live::MAX_WINDOW_S).suffix(" s"))
+                .labelled_by(label.id);
+        });
+        ui.horizontal(|ui| {
+            ui.label("Initial mode:");
+            let mode = self.preset.nc.initial_mode;
+            for (m, label) in [
+                (preset::Mode::Normal, "normal"),
+                (preset::Mode::Direct, "direct command"),
+            ] {
+                if ui.selectable_label(mode == m, label).clicked() && mode != m {
+                    self.set(
+                        "nc.initial_mode",
+                        label.split(' ').next().unwrap_or("normal"),
+                    );
+                    self.reset();
+                }
+            }
+        });
+        ui.horizontal(|ui| {
+            ui.label("PLC switch:");
+            if ui.button("-> direct").clicked() {
+                self.live
+                    .lock()
+                    .machine
+                    .plc_request(0, preset::Mode::Direct);
+            }
+            if ui.button("-> normal").clicked() {
+                self.live
+                    .lock()
+                    .machine
+                    .plc_request(0, preset::Mode::Normal);
+            }
+        });
+        egui::CollapsingHeader::new("Program")
+            .default_open(false)
+            .show(ui, |ui| {
+                if self.programs.len() > 1 {
+                    ui.horizontal(|ui| {
+                        for c in 0..self.programs.len() {
+                            if ui
+                                .selectable_label(
+                                    self.program_channel == c,
+                                    format!("channel {}", c + 1),
+                                )
+                                .clicked()
+                            {
+                                self.program_channel = c;
+                                self.program_buf = self.programs[c].1.clone();
+                            }
+                        }
+                    });
+                }
+                let l = ui.label(format!(
+                    "Program {}",
+                    self.programs
+                        .get(self.program_channel)
+                        .map_or("", |p| p.0.as_str())
+                ));
+                ui.add(
+                    egui::TextEdit::multiline(&mut self.program_buf)
+                        .code_editor()
+                        .desired_rows(8)
+                        .desired_width(f32::INFINITY),
+                )
+                .labelled_by(l.id);
+                if ui.button("Apply program").clicked() {
+                    self.apply_program();
+                }
+                if let Some(e) = &self.program_error {
+                    ui.colored_label(egui::Color32::RED, e);
+                }
+            });
+        ui.horizontal(|ui| {
+            ui.label("Axis:");
+            for (i, a) in self.preset.axes.iter().enumerate() {
+                if ui.selectable_label(self.axis_sel == i, &a.name).clicked() {
+                    self.axis_sel = i;
+                }
+            }
+        });
+    }
+
+    fn handle_screenshot(&mut self, _ctx: &egui::Context) {
+        let done = match self.png_msg.lock() {
+            Ok(mut m) => m.take(),
+            Err(p) => p.into_inner().take(),
+        };
+        if let Some(msg) = done {
+            self.status = msg;
+        }
+    }
+
+    /// Asks for a screenshot of the plot `name` to be written to `path` as PNG.
+    pub fn export_plot(&mut self, ctx: &egui::Context, name: &str, path: PathBuf) {
+        let Some(rect) = self.plot_rects.get(name).copied() else {
+            return;
+        };
+        let ppp = ctx.pixels_per_point();
+        let msg = std::sync::Arc::clone(&self.png_msg);
+        let repaint = ctx.clone();
+        ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(
+            egui::ScreenshotCallback::new(move |image| {
+                let text = match save_png(&image, rect, ppp, &path) {
+                    Ok(()) => format!("plot saved to {}", path.display()),
+                    Err(e) => format!("plot not saved: {e:#}"),
+                };
+                if let Ok(mut m) = msg.lock() {
+                    *m = Some(text);
+                }
+                repaint.request_repaint();
+            }),
+        ));
+    }
+
+    fn autosave(&mut self) {
+        let Some(file) = self.session_file.clone() else {
+            return;
+        };
+        if self.last_autosave.elapsed().as_secs_f64() < 3.0 {
+            return;
+        }
+        self.last_autosave = std::time::Instant::now();
+        let text = session::to_text(self);
+        if text != self.last_session {
+            if let Err(e) = session::write(&file, &text) {
+                self.status = format!("autosave failed: {e:#}");
+            }
+            self.last_session = text;
+        }
+    }
+
+    /// Writes the session now (on exit).
+    pub fn save_session(&mut self) {
+        if let Some(file) = self.session_file.clone() {
+            let text = session::to_text(self);
+            let _ = session::write(&file, &text);
+        }
+    }
+}
+
+/// Crops the plot's rectangle out of a window screenshot and writes it as PNG, atomically.
+fn save_png(
+    image: &egui::ColorImage,
+    rect: egui::Rect,
+    ppp: f32,
+    path: &std::path::Path,
+) -> Result<()> {
+    let region = image.region(&rect, Some(ppp));
+    let [w, h] = region.size;
+    let bytes: Vec<u8> = region.pixels.iter().flat_map(|c| c.to_array()).collect();
+    let img = image::RgbaImage::from_raw(w as u32, h as u32, bytes).context("screenshot size")?;
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    axisbench::fsutil::write_atomic(path, &png)
+        .with_context(|| format!("{}: cannot write", path.display()))?;
+    Ok(())
+}
+
+/// The eframe shell around the workbench.
+pub struct App {
+    pub wb: Workbench,
+}
+
+impl eframe::App for App {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.wb.ui(ui);
+    }
+
+    fn on_exit(&mut self, _gl: Option<&eframe::glow::Context>) {
+        self.wb.save_session();
+    }
+}
+
+/// Opens the workbench window, on `preset` if given, else on the saved session.
+pub fn run(preset: Option<PathBuf>, start: bool) -> Result<()> {
+    let mut wb = Workbench::open_session()?;
+    if let Some(p) = preset {
+        wb.open_file(p.clone());
+        if wb.path.as_ref() != Some(&p) {
+            anyhow::bail!("{}", wb.status);
+        }
+    }
+    wb.live.lock().running = start;
+    let options = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title("axisbench")
+            .with_inner_size([1280.0, 800.0]),
+        ..Default::default()
+    };
+    eframe::run_native(
+        "axisbench",
+        options,
+        Box::new(move |cc| {
+            let ctx = cc.egui_ctx.clone();
+            wb.live.spawn(move || ctx.request_repaint());
+            Ok(Box::new(App { wb }))
+        }),
+    )
+    .map_err(|e| anyhow::anyhow!("the workbench window could not open: {e}"))
+}
+
+/// Frame time of the workbench with the plots full: the default preset run for 10 s at
+/// 8 kHz, a 10 s window, then `n` frames laid out and tessellated headlessly. Returns the
+/// mean, 99th percentile and maximum in ms. Rasterising is the GPU's (or Mesa's) part and
+/// is not included.
+pub fn bench_frames(n: usize) -> Result<(f64, f64, f64)> {
+    let mut wb = Workbench::new_embedded("default.ron")?;
+    wb.live.advance(80_000);
+    wb.window_s = 10.0;
+    let ctx = egui::Context::default();
+    let raw = || egui::RawInput {
+        screen_rect: Some(egui::Rect::from_min_size(
+            egui::Pos2::ZERO,
+            egui::vec2(1400.0, 900.0),
+        )),
+        ..Default::default()
+    };
+    let mut times = Vec::with_capacity(n);
+    for i in 0..n + 5 {
+        let t0 = std::time::Instant::now();
+        let out = ctx.run_ui(raw(), |ui| wb.ui(ui));
+        let prims = ctx.tessellate(out.shapes, out.pixels_per_point);
+        std::hint::black_box(prims);
+        if i >= 5 {
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let mean = times.iter().sum::<f64>() / times.len().max(1) as f64;
+    let p99 = times
+        .get(((times.len() as f64 * 0.99) as usize).min(times.len().saturating_sub(1)))
+        .copied()
+        .unwrap_or(0.0);
+    let max = times.last().copied().unwrap_or(0.0);
+    Ok((mean, p99, max))
+}

@@ -1,0 +1,272 @@
+//! The workbench driven as a user would, headless (egui_kittest): widgets found by their
+//! label, clicked and typed into; assertions on the model behind them.
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+
+use axisbench::comp::backlash::{Backlash, OutputMode};
+
+use super::{Tab, Workbench};
+
+fn harness(wb: Workbench) -> Harness<'static, Workbench> {
+    Harness::builder()
+        .with_size(egui::vec2(1400.0, 1000.0))
+        .build_ui_state(|ui, wb: &mut Workbench| wb.ui(ui), wb)
+}
+
+fn default_wb() -> Workbench {
+    match Workbench::new_embedded("default.ron") {
+        Ok(wb) => wb,
+        Err(e) => panic!("default workbench: {e:#}"),
+    }
+}
+
+#[test]
+fn backlash_mode_change_reaches_the_model_and_the_next_reversal() {
+    let mut h = harness(default_wb());
+    h.run();
+    // The first "distance" option belongs to the + → − reversal.
+    h.get_all_by_label("distance")
+        .next()
+        .expect("a distance option")
+        .click();
+    h.run();
+    let wb = h.state();
+    assert_eq!(
+        wb.preset.axes[0].backlash.plus_to_minus.mode,
+        OutputMode::Distance
+    );
+    assert_eq!(
+        wb.preset.axes[0].backlash.minus_to_plus.mode,
+        OutputMode::Lump,
+        "only that direction"
+    );
+    {
+        let s = wb.live.lock();
+        let b = s
+            .machine
+            .comps()
+            .find::<Backlash>()
+            .next()
+            .expect("backlash installed");
+        assert_eq!(
+            b.p.plus_to_minus.mode,
+            OutputMode::Distance,
+            "the running machine took it"
+        );
+    }
+    // Run past the first + → − reversal (x = 100 mm at about 2.2 s).
+    wb.live.advance(24_000);
+    let s = wb.live.lock();
+    let comp = s.ring.col("x.backlash_comp").expect("backlash column");
+    let q_mm = wb.preset.axes[0].backlash.q_um * 1e-3;
+    let n = wb.preset.axes[0].backlash.plus_to_minus.parts_n as f64;
+    let first_part = comp
+        .iter()
+        .find(|&&v| v != 0.0)
+        .copied()
+        .expect("the reversal happened");
+    assert!(
+        (first_part + q_mm / n).abs() < 1e-12,
+        "first output {first_part} mm, expected −Q/N"
+    );
+    assert!(
+        comp.iter().any(|&v| (v + q_mm).abs() < 1e-12),
+        "all of Q by the end"
+    );
+}
+
+#[test]
+fn run_and_pause() {
+    let mut h = harness(default_wb());
+    h.run();
+    h.get_by_label("Run").click();
+    // While running, every frame asks for the next one: step frames instead of settling.
+    h.step();
+    h.step();
+    assert!(h.state().live.lock().running);
+    h.get_by_label("Pause").click();
+    h.step();
+    h.step();
+    assert!(!h.state().live.lock().running);
+    let t0 = h.state().live.lock().machine.t_s();
+    h.get_by_label("Step").click();
+    h.run();
+    let t1 = h.state().live.lock().machine.t_s();
+    assert!(
+        (t1 - t0 - 0.001).abs() < 1e-12,
+        "Step advances one T2: {t0} → {t1}"
+    );
+}
+
+#[test]
+fn load_a_preset_from_the_scenario_list() {
+    let mut h = harness(default_wb());
+    h.run();
+    h.get_by_label("Scenario").click();
+    h.run();
+    h.get_by_label("xy_circle.ron").click();
+    h.run();
+    let wb = h.state();
+    assert_eq!(wb.preset.name, "xy_circle");
+    assert_eq!(wb.live.lock().machine.axes.len(), 2);
+    assert!(
+        !wb.dirty(),
+        "a freshly loaded preset has no unsaved changes"
+    );
+}
+
+#[test]
+fn a_bad_value_shows_an_error_and_keeps_the_previous_value() {
+    let mut h = harness(default_wb());
+    h.run();
+    let before = h.state().preset.axes[0].backlash.q_um;
+    let text_input = egui::accesskit::Role::TextInput;
+    h.get_by_role_and_label(text_input, "Q").focus();
+    h.run();
+    h.get_by_role_and_label(text_input, "Q").type_text("abc");
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    assert_eq!(
+        h.state().preset.axes[0].backlash.q_um,
+        before,
+        "the old value stays in force"
+    );
+    assert!(
+        h.query_by_label_contains("is not a number").is_some(),
+        "error shown next to the field"
+    );
+    // A number the validator refuses is just as harmless.
+    let wb = h.state_mut();
+    assert!(!wb.set("axes.x.backlash.q_um", "-5"));
+    assert_eq!(wb.preset.axes[0].backlash.q_um, before);
+    assert!(
+        wb.field_errors
+            .get("axes.x.backlash.q_um")
+            .is_some_and(|e| e.contains("≥ 0"))
+    );
+    // A good value is taken and the machine gets it.
+    assert!(wb.set("axes.x.backlash.q_um", "9.5"));
+    assert_eq!(wb.live.lock().machine.preset.axes[0].backlash.q_um, 9.5);
+    assert!(wb.dirty(), "edits mark the preset unsaved");
+}
+
+#[test]
+fn ab_compare_produces_its_table() {
+    let mut h = harness(default_wb());
+    h.run();
+    h.get_by_label("A/B compare").click();
+    h.run();
+    h.get_by_label("Run A/B").click();
+    h.run();
+    let wb = h.state();
+    assert_eq!(wb.tab, Tab::Compare);
+    let c = wb.compare.as_ref().expect("compare ran");
+    assert_eq!(c.table.len(), 2, "A and B rows");
+    let (a, b) = (&c.table[0], &c.table[1]);
+    assert!(a.1 > 0.0 && b.1 > 0.0 && a.1.is_finite());
+    assert!(
+        a.3 > 0.0 && a.4 > 0.0,
+        "both reversal directions are reported: {a:?}"
+    );
+    assert!(
+        h.query_by_label("RMS error µm").is_some(),
+        "table header shown"
+    );
+}
+
+#[test]
+fn a_bad_program_keeps_the_old_one_and_names_the_line() {
+    let mut wb = default_wb();
+    let old = wb.programs[0].1.clone();
+    wb.program_buf = "G90 G01 F1000\nG41 X5\n".into();
+    wb.apply_program();
+    assert_eq!(wb.programs[0].1, old);
+    assert!(
+        wb.program_error
+            .as_deref()
+            .is_some_and(|e| e.contains(":2:1") && e.contains("G41"))
+    );
+}
+
+#[test]
+fn saves_are_atomic_files_that_load_back() {
+    let dir = std::env::temp_dir().join(format!("axisbench-app-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let path = dir.join("mine.ron");
+    let mut wb = default_wb();
+    assert!(wb.set("axes.x.backlash.q_um", "5.5"));
+    wb.save_to(path.clone());
+    assert!(!wb.dirty());
+    assert!(
+        dir.join("default.ngc").exists(),
+        "the program is saved next to the preset"
+    );
+    let mut other = default_wb();
+    other.open_file(path.clone());
+    assert_eq!(other.preset.axes[0].backlash.q_um, 5.5);
+    assert_eq!(other.recent.first(), Some(&path));
+    // Session round trip: what is autosaved restores the same edits.
+    let session = dir.join("session.ron");
+    super::session::write(&session, &super::session::to_text(&wb)).expect("session written");
+    let back = super::session::restore(&session).expect("session restores");
+    assert_eq!(back.preset.axes[0].backlash.q_um, 5.5);
+}
+
+#[test]
+fn circle_fit_recovers_centre_and_radius() {
+    let pts: Vec<(f64, f64)> = (0..50)
+        .map(|k| {
+            let th = k as f64 * 0.1;
+            (3.0 + 10.0 * th.cos(), -2.0 + 10.0 * th.sin())
+        })
+        .collect();
+    let (cx, cy, r) = super::plots::fit_circle(&pts).expect("fits");
+    assert!((cx - 3.0).abs() < 1e-9 && (cy + 2.0).abs() < 1e-9 && (r - 10.0).abs() < 1e-9);
+}
+
+#[test]
+fn decimation_keeps_extremes_and_bounds_the_point_count() {
+    use std::collections::VecDeque;
+    let t: VecDeque<f64> = (0..80_000).map(|k| k as f64 * 1.25e-4).collect();
+    let v: VecDeque<f64> = (0..80_000)
+        .map(|k| {
+            if k == 40_001 {
+                5.0
+            } else {
+                (k as f64 * 0.01).sin()
+            }
+        })
+        .collect();
+    let pts = super::plots::decimate(&t, &v, 0.0, 10.0, 1000, 1.0);
+    assert!(pts.len() <= 2000, "{} points for 1000 columns", pts.len());
+    assert!(
+        pts.iter().any(|p| p[1] == 5.0),
+        "a one-sample spike survives decimation"
+    );
+    assert!(
+        pts.windows(2).all(|w| w[1][0] >= w[0][0]),
+        "time order kept"
+    );
+}
+
+#[test]
+fn record_and_reopen_a_trace() {
+    let dir = std::env::temp_dir().join(format!("axisbench-app-tr-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let path = dir.join("rec.csv");
+    let mut wb = default_wb();
+    wb.live.advance(8_000);
+    wb.record_csv(path.clone());
+    wb.open_trace(path.clone());
+    let (_, tr) = wb.loaded_trace.as_ref().expect("trace loaded");
+    assert_eq!(tr.len(), 8_000);
+    assert!(tr.values("x.err").is_some());
+    // A bad file is a message, not a crash, and the plots keep the old overlay.
+    std::fs::write(dir.join("bad.csv"), "t[s],x.cmd[mm],x.pos[mm]\n0,0,NaN\n").expect("write");
+    wb.open_trace(dir.join("bad.csv"));
+    assert!(wb.status.contains("bad.csv:2"), "{}", wb.status);
+    assert!(wb.loaded_trace.is_some());
+}
