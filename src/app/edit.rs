@@ -11,6 +11,14 @@ use eframe::egui;
 
 use super::Workbench;
 
+/// The preset-file name of an enum value (`lump`, `two_mass`, …).
+fn snake(v: &impl serde::Serialize) -> String {
+    serde_json::to_value(v)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
+}
+
 /// A numeric field bound to a preset path.
 fn num_ui(wb: &mut Workbench, ui: &mut egui::Ui, label: &str, unit: &str, path: &str, value: f64) {
     ui.horizontal(|ui| {
@@ -164,10 +172,7 @@ fn backlash_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
     ] {
         ui.label(egui::RichText::new(title).strong());
         let dp = format!("{p}.backlash.{key}");
-        let mode = serde_json::to_value(d.mode)
-            .ok()
-            .and_then(|v| v.as_str().map(str::to_owned))
-            .unwrap_or_default();
+        let mode = snake(&d.mode);
         choice_ui(
             wb,
             ui,
@@ -204,10 +209,7 @@ fn backlash_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
                 d.cycles_m as f64,
             ),
             "function" => {
-                let basis = serde_json::to_value(d.function_basis)
-                    .ok()
-                    .and_then(|v| v.as_str().map(str::to_owned))
-                    .unwrap_or_default();
+                let basis = snake(&d.function_basis);
                 choice_ui(
                     wb,
                     ui,
@@ -317,17 +319,12 @@ fn quadrant_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         &format!("{qp}.p0_mm"),
         q.p0_mm,
     );
-    let name = |v: serde_json::Result<serde_json::Value>| {
-        v.ok()
-            .and_then(|v| v.as_str().map(str::to_owned))
-            .unwrap_or_default()
-    };
     choice_ui(
         wb,
         ui,
         "N update:",
         &format!("{qp}.update"),
-        &name(serde_json::to_value(q.update)),
+        &snake(&q.update),
         &["reset", "decrement"],
     );
     choice_ui(
@@ -335,7 +332,7 @@ fn quadrant_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         ui,
         "inject into:",
         &format!("{qp}.inject"),
-        &name(serde_json::to_value(q.inject)),
+        &snake(&q.inject),
         &["torque", "velocity", "position"],
     );
     choice_ui(
@@ -343,7 +340,7 @@ fn quadrant_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         ui,
         "pulse:",
         &format!("{qp}.shape"),
-        &name(serde_json::to_value(q.shape)),
+        &snake(&q.shape),
         &["rectangular", "exponential"],
     );
     let axis = wb.axis_sel;
@@ -378,17 +375,12 @@ fn thermal_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         &format!("{tp}.enabled"),
         t.enabled,
     );
-    let name = |v: serde_json::Result<serde_json::Value>| {
-        v.ok()
-            .and_then(|v| v.as_str().map(str::to_owned))
-            .unwrap_or_default()
-    };
     choice_ui(
         wb,
         ui,
         "predictor:",
         &format!("{tp}.source"),
-        &name(serde_json::to_value(t.source)),
+        &snake(&t.source),
         &["operation", "temperature"],
     );
     num_ui(wb, ui, "k", "1/µm", &format!("{tp}.k_per_um"), t.k_per_um);
@@ -399,7 +391,7 @@ fn thermal_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         ui,
         "judgement:",
         &format!("{tp}.judgement"),
-        &name(serde_json::to_value(t.judgement)),
+        &snake(&t.judgement),
         &["none", "since_last", "window", "reference"],
     );
     num_ui(
