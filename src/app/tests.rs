@@ -1,6 +1,7 @@
 //! The workbench driven as a user would, headless (egui_kittest): widgets found by their
 //! label, clicked and typed into; assertions on the model behind them.
 
+#[cfg(test)]
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
