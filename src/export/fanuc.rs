@@ -1,0 +1,5 @@
+//! placeholder
+use super::{Ctx, Rendered, Violation};
+pub(crate) fn render(_ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
+    Err(vec![Violation::new("fanuc", "not yet")])
+}
