@@ -58,7 +58,7 @@ fn comp_rows(ctx: &Ctx, i: usize) -> Option<(Vec<CompRow>, super::PitchTable)> {
     }
     let pt = super::pitch_table(&a.lead_error, ctx.axes[i].travel_mm, COMP_SIZE, false);
     let half_q = if a.backlash.enabled {
-        0.5 * a.backlash.q_um * 1e-3
+        0.5 * a.backlash.q_um / 1000.0
     } else {
         0.0
     };
@@ -67,8 +67,8 @@ fn comp_rows(ctx: &Ctx, i: usize) -> Option<(Vec<CompRow>, super::PitchTable)> {
         .iter()
         .map(|&(x, c_um)| CompRow {
             nominal: x,
-            fwd: c_um * 1e-3 + half_q,
-            rev: c_um * 1e-3 - half_q,
+            fwd: c_um / 1000.0 + half_q,
+            rev: c_um / 1000.0 - half_q,
         })
         .collect();
     Some((rows, pt))
@@ -112,7 +112,7 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         let lim = &ctx.axes[i].limits;
         let letter = letters.get(i).copied().unwrap_or('X');
         let q_mm = if a.backlash.enabled {
-            a.backlash.q_um * 1e-3
+            a.backlash.q_um / 1000.0
         } else {
             0.0
         };
@@ -361,7 +361,6 @@ pub fn parse_comp_file(text: &str, file: &str, file_type: u8) -> (Vec<CompRow>, 
         ));
         return (rows, bad);
     }
-    let mut stop_line: Option<usize> = None;
     for (n, line) in body.split('\n').enumerate() {
         let at = format!("{file}:{}", n + 1);
         let line = line.strip_suffix('\r').unwrap_or(line);
@@ -382,32 +381,22 @@ pub fn parse_comp_file(text: &str, file: &str, file_type: u8) -> (Vec<CompRow>, 
                 &at,
                 format!("{why}: LinuxCNC stops reading at the first line that is not three numbers, so this line and every row after it would be ignored silently"),
             ));
-            stop_line.get_or_insert(n);
             continue;
         }
-        let mut vals = [0.0; 3];
-        let mut ok = true;
-        for (k, f) in fields.iter().enumerate() {
-            match f.parse::<f64>() {
-                Ok(v) if v.is_finite() => vals[k] = v,
-                Ok(v) => {
-                    bad.push(Violation::new(
-                        &at,
-                        format!("field {} is {v}: LinuxCNC accepts it silently and the compensation goes wrong (a NaN trim freezes backlash_filt)", k + 1),
-                    ));
-                    ok = false;
-                }
-                Err(_) => {
-                    bad.push(Violation::new(
-                        &at,
-                        format!("field {} '{f}' is not a number: LinuxCNC stops reading here", k + 1),
-                    ));
-                    stop_line.get_or_insert(n);
-                    ok = false;
-                }
-            }
+        let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse::<f64>().ok()).collect();
+        if parsed.iter().any(Option::is_none) {
+            bad.push(Violation::new(
+                &at,
+                format!("'{line}' is not three numbers (a header or text line?): LinuxCNC stops reading here and ignores every row after it"),
+            ));
+            continue;
         }
-        if !ok {
+        let vals: Vec<f64> = parsed.into_iter().flatten().collect();
+        if let Some(k) = vals.iter().position(|v| !v.is_finite()) {
+            bad.push(Violation::new(
+                &at,
+                format!("field {} is {}: LinuxCNC accepts it silently and the compensation goes wrong (a NaN trim freezes backlash_filt)", k + 1, vals[k]),
+            ));
             continue;
         }
         let row = if file_type == 0 {
@@ -656,7 +645,7 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
             a.backlash.enabled = false;
         } else {
             a.backlash.enabled = true;
-            let q_um = q_mm * 1e3;
+            let q_um = q_mm * 1000.0;
             if !close(q_um, a.backlash.q_um) {
                 a.backlash.q_um = q_um;
             }

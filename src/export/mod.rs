@@ -286,6 +286,8 @@ impl Export {
 pub(crate) struct Ctx<'a> {
     pub preset: &'a Preset,
     pub axes: Vec<AxisDerived>,
+    /// Per axis: the thermal correction F' (m) at the end of the report's baseline run.
+    pub thermal_end_m: Vec<Option<f64>>,
 }
 
 impl<'a> Ctx<'a> {
@@ -302,7 +304,14 @@ impl<'a> Ctx<'a> {
                 }
             })
             .collect();
-        Ctx { preset, axes }
+        let thermal_end_m = (0..preset.axes.len())
+            .map(|i| sim.and_then(|s| s.thermal_end_m(i)))
+            .collect();
+        Ctx {
+            preset,
+            axes,
+            thermal_end_m,
+        }
     }
 }
 
@@ -521,4 +530,58 @@ pub fn fixed(x: f64, digits: usize) -> String {
     } else {
         s
     }
+}
+
+/// A point table on an equidistant grid, for controls whose tables have one spacing: the
+/// table itself when its points are equidistant, else resampled at its smallest spacing
+/// (at most `max_points`). Returns (points, spacing, largest interpolation change µm or
+/// table unit).
+pub fn equidistant(points: &[(f64, f64)], max_points: usize) -> (Vec<(f64, f64)>, f64, f64) {
+    let (Some(first), Some(last)) = (points.first(), points.last()) else {
+        return (vec![], 0.0, 0.0);
+    };
+    if points.len() < 2 {
+        return (points.to_vec(), 1.0, 0.0);
+    }
+    let width = last.0 - first.0;
+    let step0 = points[1].0 - points[0].0;
+    let regular = points
+        .windows(2)
+        .all(|w| ((w[1].0 - w[0].0) - step0).abs() <= 1e-9 * width.max(1.0));
+    if regular {
+        return (points.to_vec(), step0, 0.0);
+    }
+    let min_gap = points
+        .windows(2)
+        .map(|w| w[1].0 - w[0].0)
+        .fold(f64::INFINITY, f64::min);
+    let n = ((width / min_gap).ceil() as usize + 1).clamp(2, max_points.max(2));
+    let step = width / (n - 1) as f64;
+    let out: Vec<(f64, f64)> = (0..n)
+        .map(|i| {
+            let x = if i + 1 == n { last.0 } else { first.0 + step * i as f64 };
+            (x, crate::table::interp(points, x))
+        })
+        .collect();
+    let m = 20_000;
+    let err = (0..=m)
+        .map(|i| first.0 + width * i as f64 / m as f64)
+        .chain(points.iter().map(|p| p.0))
+        .map(|x| (crate::table::interp(points, x) - crate::table::interp(&out, x)).abs())
+        .fold(0.0, f64::max);
+    (out, step, err)
+}
+
+/// The cross tables whose compensated axis is `axis`, with their index.
+pub(crate) fn cross_into<'a>(p: &'a Preset, axis: &str) -> Vec<(usize, &'a crate::comp::cross::CrossTable)> {
+    p.cross
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.enabled && t.comp_axis == axis)
+        .collect()
+}
+
+/// Index of the axis named `name` (validated presets always have it).
+pub(crate) fn axis_index(p: &Preset, name: &str) -> usize {
+    p.axes.iter().position(|a| a.name == name).unwrap_or(0)
 }

@@ -319,6 +319,10 @@ impl Sim {
         self.range_mm.get(axis).copied().flatten()
     }
 
+    pub fn thermal_end_m(&self, axis: usize) -> Option<f64> {
+        self.thermal_end_m.get(axis).copied().flatten()
+    }
+
     /// Largest |correction| of the preset's own compensations on `axis`, µm.
     pub fn base_correction_max_um(&self, axis: usize) -> f64 {
         self.corr_um[axis].iter().fold(0.0, |m, v| m.max(v.abs()))
