@@ -290,10 +290,17 @@ fn export_buttons_write_the_target_files_and_the_report() {
     );
     let report = std::fs::read_to_string(dir.join("mapping_report.md")).expect("report written");
     assert!(report.contains("BACKLASH"), "{report}");
-    assert!(h.state().status.starts_with("exported"), "{}", h.state().status);
+    assert!(
+        h.state().status.starts_with("exported"),
+        "{}",
+        h.state().status
+    );
     h.get_by_label("Export fanuc").click();
     h.run();
     let fanuc = std::fs::read_to_string(dir.join("fanuc_parameters.txt")).expect("fanuc list");
-    assert!(fanuc.contains("N1851 A1 P7"), "7.4 µm → 7 detection units: {fanuc}");
+    assert!(
+        fanuc.contains("N1851 A1 P7"),
+        "7.4 µm → 7 detection units: {fanuc}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -459,13 +459,19 @@ mod tests {
         while c.backlash_filt != -0.025 {
             let before = c.backlash_vel;
             c.step(0.0, -1.0);
-            assert!((c.backlash_vel - before).abs() <= 0.25 + 1e-12, "a ≤ 250 mm/s²");
+            assert!(
+                (c.backlash_vel - before).abs() <= 0.25 + 1e-12,
+                "a ≤ 250 mm/s²"
+            );
             peak = peak.max(c.backlash_vel.abs());
             n += 1;
             assert!(n < 100, "the ramp ends");
         }
         assert!((25..=32).contains(&n), "{n} periods");
-        assert!((peak - 3.5).abs() < 0.26, "triangular peak ≈ √(B·a) = 3.5: {peak}");
+        assert!(
+            (peak - 3.5).abs() < 0.26,
+            "triangular peak ≈ √(B·a) = 3.5: {peak}"
+        );
         // With MAX_VELOCITY = 4 the peak is capped at 2 mm/s.
         let mut c = LinuxCncComp::new(CompTable::default(), joint(0.05, 4.0, 500.0));
         let mut peak: f64 = 0.0;

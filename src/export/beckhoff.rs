@@ -15,6 +15,7 @@
 //!   (P-COMP-00018; 0 = the setpoints are given), `kw_startpos` (P-COMP-00019),
 //!   `kw_nr_max` (P-COMP-00020), `bilateral` (P-COMP-00021; 1 = separate values for the
 //!   positive and negative direction), `table[i].setpoint`, `.pos`, `.neg` in 0.1 µm.
+//!
 //! Choices: the per-direction backlash goes into the bilateral leadscrew table (the
 //! negative-direction column carries −Q relative to the positive one, axisbench's convention
 //! with + as the reference direction); values are rounded to whole 0.1 µm (SGN32 in builds
@@ -79,23 +80,35 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             used = true;
             if b.enabled {
                 let q_r = tenth_um(q_mm) as f64 * 0.1;
-                let entry = format!("achskw_{nr}.lis kw.ssfk bilateral: .neg − .pos = {} (0.1 µm)", -tenth_um(q_mm));
+                let entry = format!(
+                    "achskw_{nr}.lis kw.ssfk bilateral: .neg − .pos = {} (0.1 µm)",
+                    -tenth_um(q_mm)
+                );
                 let setting = format!("axes[{}].backlash.q_um = {}", a.name, b.q_um);
                 let note = "per direction in the bilateral leadscrew table: + direction as measured, − direction −Q (axisbench's one-sided convention, + as reference), switched at the reversal";
                 if (q_r - b.q_um).abs() < 1e-9 {
                     entries.push(Pending::mapped(setting, entry, note));
                 } else {
-                    entries.push(Pending::approximated(setting, entry, &format!("{note}; rounded to 0.1 µm")).evaluated(
-                        super::ErrFigures {
+                    entries.push(
+                        Pending::approximated(
+                            setting,
+                            entry,
+                            &format!("{note}; rounded to 0.1 µm"),
+                        )
+                        .evaluated(super::ErrFigures {
                             method: "rounding to the list's 0.1 µm unit".into(),
                             correction_max_um: (q_r - b.q_um).abs(),
                             correction_rms_um: None,
                             position_error_max_um: None,
                             constant_offset_um: 0.0,
-                        },
-                    ));
+                        }),
+                    );
                 }
-                entries.extend(report::backlash_modes_as_lump(ctx, i, "The bilateral table"));
+                entries.extend(report::backlash_modes_as_lump(
+                    ctx,
+                    i,
+                    "The bilateral table",
+                ));
             }
             if a.lead_error.enabled {
                 let grid: Vec<(f64, f64)> = rounded
@@ -111,7 +124,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
                     ctx,
                     i,
                     &pt,
-                    format!("achskw_{nr}.lis kw.ssfk.table[0…{}] (.pos; .neg = .pos − Q)", rounded.len() - 1),
+                    format!(
+                        "achskw_{nr}.lis kw.ssfk.table[0…{}] (.pos; .neg = .pos − Q)",
+                        rounded.len() - 1
+                    ),
                 ));
             }
         }
@@ -152,13 +168,17 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
                 if resid < 1e-9 {
                     entries.push(Pending::mapped(setting, target, "same points in 0.1 µm"));
                 } else {
-                    entries.push(Pending::approximated(setting, target, "rounded to 0.1 µm").evaluated(super::ErrFigures {
-                        method: format!("rounding to 0.1 µm: {}", fixed(resid, 3)),
-                        correction_max_um: resid,
-                        correction_rms_um: None,
-                        position_error_max_um: None,
-                        constant_offset_um: 0.0,
-                    }));
+                    entries.push(
+                        Pending::approximated(setting, target, "rounded to 0.1 µm").evaluated(
+                            super::ErrFigures {
+                                method: format!("rounding to 0.1 µm: {}", fixed(resid, 3)),
+                                correction_max_um: resid,
+                                correction_rms_um: None,
+                                position_error_max_um: None,
+                                constant_offset_um: 0.0,
+                            },
+                        ),
+                    );
                 }
             }
         }
@@ -170,7 +190,11 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             i,
             "the ISG friction compensation (frict_comp.*) is a velocity-dependent current table, not a reversal pulse adapted to the stroke",
         ));
-        entries.extend(report::thermal_omitted(ctx, i, "the compensation lists are static"));
+        entries.extend(report::thermal_omitted(
+            ctx,
+            i,
+            "the compensation lists are static",
+        ));
     }
     entries.extend(report::cross_omitted(
         ctx,

@@ -15,9 +15,11 @@
 //!   is a point); the data of point n is the change of the correction from point n−1 to n,
 //!   in detection units (FANUC technical report A-77810E for the bidirectional variant,
 //!   No. 3605#0, 3626, 3627, not used here).
+//!
 //! Anything else (quadrant/backlash acceleration, thermal, straightness) is reported as "no
 //! documented parameter": FANUC has such functions, but their parameter numbers are not
 //! documented here, so none is written.
+//!
 //! Choices: detection unit 1 µm (IS-B); a preset value is rounded to it; at most 128 pitch
 //! points per axis and 1024 pitch data in all.
 
@@ -41,7 +43,11 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
     let mut lines: Vec<String> = vec![format!(
         "; FANUC parameters exported by axisbench from preset '{}'\n; axis k = the preset's k-th axis ({}); detection unit 1 um (IS-B)\n; format: N<parameter> A<axis> P<value> ...; pitch error data: N<10000 + data number> P<value>",
         p.name,
-        p.axes.iter().map(|a| a.name.as_str()).collect::<Vec<_>>().join(", ")
+        p.axes
+            .iter()
+            .map(|a| a.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
     )];
     let axis_line = |no: u32, vals: &[String]| {
         let mut s = format!("N{no}");
@@ -69,7 +75,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
     lines.push(axis_line(1825, &gains));
     entries.push(Pending::derived(
         "nc.rapid_mm_per_min",
-        format!("No. 1420 = {} mm/min (every axis)", rapid.first().cloned().unwrap_or_default()),
+        format!(
+            "No. 1420 = {} mm/min (every axis)",
+            rapid.first().cloned().unwrap_or_default()
+        ),
         "the rapid traverse rate",
     ));
     entries.push(Pending::approximated(
@@ -80,12 +89,19 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
     // Backlash 1851/1852.
     let mut bl: Vec<String> = Vec::new();
     for (i, a) in p.axes.iter().enumerate() {
-        let q_mm = if a.backlash.enabled { a.backlash.q_um / 1000.0 } else { 0.0 };
+        let q_mm = if a.backlash.enabled {
+            a.backlash.q_um / 1000.0
+        } else {
+            0.0
+        };
         let v = du(q_mm);
         if !(-9999..=9999).contains(&v) {
             violations.push(Violation::new(
                 format!("axes[{}].backlash.q_um", a.name),
-                format!("{} µm is {v} detection units; No. 1851 takes −9999…9999", a.backlash.q_um),
+                format!(
+                    "{} µm is {v} detection units; No. 1851 takes −9999…9999",
+                    a.backlash.q_um
+                ),
             ));
         }
         bl.push(v.to_string());
@@ -96,19 +112,30 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         ));
         if a.backlash.enabled {
             let err = (v as f64 * DETECTION_UNIT_MM - q_mm).abs() * 1e3;
-            let target = format!("No. 1851 A{} = {v}, No. 1852 A{} = {v} (1800#4 RBK = 0)", i + 1, i + 1);
+            let target = format!(
+                "No. 1851 A{} = {v}, No. 1852 A{} = {v} (1800#4 RBK = 0)",
+                i + 1,
+                i + 1
+            );
             let setting = format!("axes[{}].backlash.q_um = {}", a.name, a.backlash.q_um);
             let note = "in detection units; output when the axis first moves against the reference return direction, as axisbench keeps the first direction at 0; 1852 holds the same amount for rapid traverse (the preset has one)";
             if err < 1e-9 {
                 entries.push(Pending::mapped(setting, target, note));
             } else {
-                entries.push(Pending::approximated(setting, target, &format!("{note}; rounded to the 1 µm detection unit")).evaluated(ErrFigures {
-                    method: "rounding to the detection unit".into(),
-                    correction_max_um: err,
-                    correction_rms_um: None,
-                    position_error_max_um: None,
-                    constant_offset_um: 0.0,
-                }));
+                entries.push(
+                    Pending::approximated(
+                        setting,
+                        target,
+                        &format!("{note}; rounded to the 1 µm detection unit"),
+                    )
+                    .evaluated(ErrFigures {
+                        method: "rounding to the detection unit".into(),
+                        correction_max_um: err,
+                        correction_rms_um: None,
+                        position_error_max_um: None,
+                        constant_offset_um: 0.0,
+                    }),
+                );
             }
             entries.extend(report::backlash_modes_as_lump(ctx, i, "FANUC (No. 1851)"));
         }

@@ -13,6 +13,7 @@
 //!   rejected; this export keeps to that bound.
 //! - Same manual, "Backlash": MP_backLash (mm) is added at every reversal; MP_filterTime is
 //!   the time over which it is traversed (0 = at once). MP750.x/MP752.x on the iTNC 530.
+//!
 //! Choices: one `.COM` per input axis (its own lead error in its own column, the cross
 //! tables it drives in the compensated axes' columns) on the union of all their points, so
 //! every function stays exact; values to 0.01 µm.
@@ -41,9 +42,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
     for (i, a) in p.axes.iter().enumerate() {
         let k = key(&a.name);
         // ---- the table whose input is this axis ----
-        let pitch = a.lead_error.enabled.then(|| {
-            super::pitch_table(&a.lead_error, ctx.axes[i].travel_mm, MAX_ENTRIES, false)
-        });
+        let pitch = a
+            .lead_error
+            .enabled
+            .then(|| super::pitch_table(&a.lead_error, ctx.axes[i].travel_mm, MAX_ENTRIES, false));
         let crosses: Vec<(usize, &crate::comp::cross::CrossTable)> = p
             .cross
             .iter()
@@ -51,7 +53,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             .filter(|(_, t)| t.enabled && t.base_axis == a.name)
             .collect();
         if pitch.is_some() || !crosses.is_empty() {
-            let mut xs: Vec<f64> = pitch.iter().flat_map(|t| t.points.iter().map(|p| p.0)).collect();
+            let mut xs: Vec<f64> = pitch
+                .iter()
+                .flat_map(|t| t.points.iter().map(|p| p.0))
+                .collect();
             for (_, t) in &crosses {
                 xs.extend(t.points.iter().map(|p| p.0));
             }
@@ -71,11 +76,19 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             // Columns: compensated axes.
             let mut cols: Vec<(String, Vec<f64>)> = Vec::new();
             if let Some(pt) = &pitch {
-                cols.push((k.clone(), xs.iter().map(|&x| crate::table::interp(&pt.points, x)).collect()));
+                cols.push((
+                    k.clone(),
+                    xs.iter()
+                        .map(|&x| crate::table::interp(&pt.points, x))
+                        .collect(),
+                ));
             }
             for (_, t) in &crosses {
                 let ck = key(&t.comp_axis);
-                let vals: Vec<f64> = xs.iter().map(|&x| crate::table::interp(&t.points, x)).collect();
+                let vals: Vec<f64> = xs
+                    .iter()
+                    .map(|&x| crate::table::interp(&t.points, x))
+                    .collect();
                 match cols.iter_mut().find(|c| c.0 == ck) {
                     Some(c) => c.1.iter_mut().zip(&vals).for_each(|(a, b)| *a += b),
                     None => cols.push((ck, vals)),
@@ -100,12 +113,22 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             if let Some(pt) = &pitch {
                 let grid: Vec<(f64, f64)> = xs
                     .iter()
-                    .map(|&x| (x, (crate::table::interp(&pt.points, x) * 100.0).round() / 100.0))
+                    .map(|&x| {
+                        (
+                            x,
+                            (crate::table::interp(&pt.points, x) * 100.0).round() / 100.0,
+                        )
+                    })
                     .collect();
                 let mut pt2 = pt.clone();
                 pt2.points = grid.clone();
                 pt2.residual_um = super::residual_um(&a.lead_error, &grid, ctx.axes[i].travel_mm);
-                entries.push(report::pitch_entry(ctx, i, &pt2, format!("{name} column {k}, {} points", xs.len())));
+                entries.push(report::pitch_entry(
+                    ctx,
+                    i,
+                    &pt2,
+                    format!("{name} column {k}, {} points", xs.len()),
+                ));
             }
             for (ci, t) in &crosses {
                 entries.push(Pending::mapped(
@@ -174,7 +197,11 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             i,
             "a .COM table is static; thermal growth needs the PLC or KinematicsComp",
         ));
-        entries.extend(report::servo_entries(ctx, i, "the drive (machine parameters of the control loop)"));
+        entries.extend(report::servo_entries(
+            ctx,
+            i,
+            "the drive (machine parameters of the control loop)",
+        ));
     }
     if !cma_cols.is_empty() {
         let mut s = format!("BEGIN CONFIG.CMA\n{:<6}", "NR");
@@ -197,5 +224,9 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
 }
 
 fn signed(s: String) -> String {
-    if s.starts_with('-') { s } else { format!("+{s}") }
+    if s.starts_with('-') {
+        s
+    } else {
+        format!("+{s}")
+    }
 }

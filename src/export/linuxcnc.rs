@@ -148,7 +148,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         // ---- report ----
         entries.push(Pending::derived(
             "nc.rapid_mm_per_min",
-            format!("{joint}MAX_VELOCITY = {0}, {axis}MAX_VELOCITY = {0}", num(lim.max_vel_mm_s)),
+            format!(
+                "{joint}MAX_VELOCITY = {0}, {axis}MAX_VELOCITY = {0}",
+                num(lim.max_vel_mm_s)
+            ),
             "rapid traverse / 60 (mm/s)",
         ));
         entries.push(Pending::approximated(
@@ -215,7 +218,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
                     true,
                 ),
             );
-            for (name, d) in [("plus_to_minus", &b.plus_to_minus), ("minus_to_plus", &b.minus_to_plus)] {
+            for (name, d) in [
+                ("plus_to_minus", &b.plus_to_minus),
+                ("minus_to_plus", &b.minus_to_plus),
+            ] {
                 entries.push(Pending::not_representable(
                     format!("axes[{}].backlash.{name}.mode = {}", a.name, report::direction_text(d)),
                     "LinuxCNC has one output behaviour for both directions; nearest: its ramped correction (the error is in the backlash amount row, which simulates the whole LinuxCNC correction)",
@@ -250,7 +256,11 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             i,
             "LinuxCNC 2.9 has no thermal model in the INI (a HAL component would have to shift the joint)",
         ));
-        entries.extend(report::servo_entries(ctx, i, "the drive or the HAL pid component (P, FF1 = vff, FF2)"));
+        entries.extend(report::servo_entries(
+            ctx,
+            i,
+            "the drive or the HAL pid component (P, FF1 = vff, FF2)",
+        ));
     }
     entries.extend(report::cross_omitted(
         ctx,
@@ -260,7 +270,12 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
     files.insert(0, (INI_FILE.to_owned(), ini));
     // What LinuxCNC would accept silently must not be in our own output.
     let found = check_outputs(&files);
-    violations.extend(found.into_iter().map(|v| Violation::new(v.location, format!("internal: the generated output is wrong: {}", v.reason))));
+    violations.extend(found.into_iter().map(|v| {
+        Violation::new(
+            v.location,
+            format!("internal: the generated output is wrong: {}", v.reason),
+        )
+    }));
     if violations.is_empty() {
         Ok(Rendered { files, entries })
     } else {
@@ -286,16 +301,21 @@ pub fn joint_model(
         reason: e.to_string(),
     })?;
     let sec = format!("JOINT_{joint}");
-    let props = ini.section(Some(sec.as_str())).ok_or_else(|| super::ExportError::Input {
-        file: file.clone(),
-        reason: format!("no [{sec}]"),
-    })?;
+    let props = ini
+        .section(Some(sec.as_str()))
+        .ok_or_else(|| super::ExportError::Input {
+            file: file.clone(),
+            reason: format!("no [{sec}]"),
+        })?;
     let mut bad = Vec::new();
     let num = |key: &str, default: Option<f64>, bad: &mut Vec<Violation>| -> f64 {
         match props.get(key).map(|v| v.trim().parse::<f64>()) {
             Some(Ok(x)) => x,
             Some(Err(_)) => {
-                bad.push(Violation::new(format!("{file}: [{sec}]{key}"), "not a number"));
+                bad.push(Violation::new(
+                    format!("{file}: [{sec}]{key}"),
+                    "not a number",
+                ));
                 f64::NAN
             }
             None => default.unwrap_or_else(|| {
@@ -308,9 +328,20 @@ pub fn joint_model(
     let max_velocity = num("MAX_VELOCITY", None, &mut bad);
     let max_acceleration = num("MAX_ACCELERATION", None, &mut bad);
     let mut rows = Vec::new();
-    if let Some(cf) = props.get("COMP_FILE").map(str::trim).filter(|c| !c.is_empty()) {
-        let ty = if props.get("COMP_FILE_TYPE").map(str::trim) == Some("1") { 1 } else { 0 };
-        let dir = ini_path.parent().map(|d| d.to_path_buf()).unwrap_or_default();
+    if let Some(cf) = props
+        .get("COMP_FILE")
+        .map(str::trim)
+        .filter(|c| !c.is_empty())
+    {
+        let ty = if props.get("COMP_FILE_TYPE").map(str::trim) == Some("1") {
+            1
+        } else {
+            0
+        };
+        let dir = ini_path
+            .parent()
+            .map(|d| d.to_path_buf())
+            .unwrap_or_default();
         let path = dir.join(cf);
         match std::fs::read_to_string(&path) {
             Ok(t) => {
@@ -322,7 +353,10 @@ pub fn joint_model(
         }
     }
     if !bad.is_empty() {
-        return Err(super::ExportError::Import { file, violations: bad });
+        return Err(super::ExportError::Import {
+            file,
+            violations: bad,
+        });
     }
     let (table, _) = crate::comp::linuxcnc::CompTable::load(&rows);
     Ok(crate::comp::linuxcnc::LinuxCncComp::new(
@@ -459,7 +493,13 @@ pub fn check_outputs(files: &[(String, String)]) -> Vec<Violation> {
         if !(sec.starts_with("JOINT_") || sec.starts_with("AXIS_")) {
             continue;
         }
-        for key in ["MAX_VELOCITY", "MAX_ACCELERATION", "FERROR", "MIN_FERROR", "BACKLASH"] {
+        for key in [
+            "MAX_VELOCITY",
+            "MAX_ACCELERATION",
+            "FERROR",
+            "MIN_FERROR",
+            "BACKLASH",
+        ] {
             if let Some(v) = props.get(key) {
                 match v.trim().parse::<f64>() {
                     Ok(x) if x.is_finite() && (x > 0.0 || (key == "BACKLASH" && x == 0.0)) => {}
@@ -469,7 +509,10 @@ pub fn check_outputs(files: &[(String, String)]) -> Vec<Violation> {
                     )),
                     _ => bad.push(Violation::new(
                         at(key),
-                        format!("'{v}' must be a finite number > 0{}", if key == "BACKLASH" { " (or 0)" } else { "" }),
+                        format!(
+                            "'{v}' must be a finite number > 0{}",
+                            if key == "BACKLASH" { " (or 0)" } else { "" }
+                        ),
                     )),
                 }
             }
@@ -478,7 +521,10 @@ pub fn check_outputs(files: &[(String, String)]) -> Vec<Violation> {
             && let (Ok(f), Ok(m)) = (f.trim().parse::<f64>(), m.trim().parse::<f64>())
             && m > f
         {
-            bad.push(Violation::new(at("MIN_FERROR"), format!("{m} is above FERROR = {f}")));
+            bad.push(Violation::new(
+                at("MIN_FERROR"),
+                format!("{m} is above FERROR = {f}"),
+            ));
         }
         if let Some(cf) = props.get("COMP_FILE") {
             let cf = cf.trim();
@@ -487,7 +533,10 @@ pub fn check_outputs(files: &[(String, String)]) -> Vec<Violation> {
                 "0" => 0,
                 "1" => 1,
                 other => {
-                    bad.push(Violation::new(at("COMP_FILE_TYPE"), format!("'{other}' is not 0 or 1")));
+                    bad.push(Violation::new(
+                        at("COMP_FILE_TYPE"),
+                        format!("'{other}' is not 0 or 1"),
+                    ));
                     1
                 }
             };
@@ -499,7 +548,10 @@ pub fn check_outputs(files: &[(String, String)]) -> Vec<Violation> {
             } else if let Some((_, text)) = files.iter().find(|(n, _)| n == cf) {
                 bad.extend(parse_comp_file(text, cf, ty).1);
             } else {
-                bad.push(Violation::new(at("COMP_FILE"), format!("'{cf}' is not among the exported files")));
+                bad.push(Violation::new(
+                    at("COMP_FILE"),
+                    format!("'{cf}' is not among the exported files"),
+                ));
             }
         }
     }
@@ -518,7 +570,10 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
         file: file.clone(),
         source,
     })?;
-    let dir = ini_path.parent().map(|d| d.to_path_buf()).unwrap_or_default();
+    let dir = ini_path
+        .parent()
+        .map(|d| d.to_path_buf())
+        .unwrap_or_default();
     let ini = Ini::load_from_str(&text).map_err(|e| super::ExportError::Input {
         file: file.clone(),
         reason: format!("not an INI file: {e}"),
@@ -537,7 +592,10 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
                 p.axes.len()
             ),
         ));
-        return Err(super::ExportError::Import { file, violations: bad });
+        return Err(super::ExportError::Import {
+            file,
+            violations: bad,
+        });
     }
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-12);
     let mut rapid: Option<f64> = None;
@@ -549,14 +607,21 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
             match v.trim().parse::<f64>() {
                 Ok(x) if x.is_finite() => Some(x),
                 _ => {
-                    bad.push(Violation::new(format!("{file}: [{sec}]{key}"), format!("'{v}' is not a finite number")));
+                    bad.push(Violation::new(
+                        format!("{file}: [{sec}]{key}"),
+                        format!("'{v}' is not a finite number"),
+                    ));
                     None
                 }
             }
         };
         let base_lim = super::axis_limits(base, &base.axes[n]);
         if let Some(v) = get("MAX_VELOCITY", &mut bad) {
-            let v = if close(v, base_lim.max_vel_mm_s) { base_lim.max_vel_mm_s } else { v };
+            let v = if close(v, base_lim.max_vel_mm_s) {
+                base_lim.max_vel_mm_s
+            } else {
+                v
+            };
             match rapid {
                 Some(r) if !close(r, v) => bad.push(Violation::new(
                     format!("{file}: [{sec}]MAX_VELOCITY"),
@@ -569,7 +634,10 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
             && !close(acc, base_lim.max_acc_mm_s2)
         {
             if acc <= 0.0 {
-                bad.push(Violation::new(format!("{file}: [{sec}]MAX_ACCELERATION"), format!("{acc} must be > 0")));
+                bad.push(Violation::new(
+                    format!("{file}: [{sec}]MAX_ACCELERATION"),
+                    format!("{acc} must be > 0"),
+                ));
             } else {
                 let v = rapid.unwrap_or(base_lim.max_vel_mm_s);
                 p.nc.accdec.kind = crate::preset::AccDecKind::Linear;
@@ -586,19 +654,28 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
                 None | Some("0") => 0,
                 Some("1") => 1,
                 Some(o) => {
-                    bad.push(Violation::new(format!("{file}: [{sec}]COMP_FILE_TYPE"), format!("'{o}' is not 0 or 1")));
+                    bad.push(Violation::new(
+                        format!("{file}: [{sec}]COMP_FILE_TYPE"),
+                        format!("'{o}' is not 0 or 1"),
+                    ));
                     1
                 }
             };
             let path = dir.join(cf);
             let text = if cf.is_empty() {
-                bad.push(Violation::new(format!("{file}: [{sec}]COMP_FILE"), "empty: LinuxCNC loads 0 rows silently"));
+                bad.push(Violation::new(
+                    format!("{file}: [{sec}]COMP_FILE"),
+                    "empty: LinuxCNC loads 0 rows silently",
+                ));
                 String::new()
             } else {
                 match std::fs::read_to_string(&path) {
                     Ok(t) => t,
                     Err(e) => {
-                        bad.push(Violation::new(path.display().to_string(), format!("cannot read: {e}")));
+                        bad.push(Violation::new(
+                            path.display().to_string(),
+                            format!("cannot read: {e}"),
+                        ));
                         String::new()
                     }
                 }
@@ -626,7 +703,9 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
                     .map(|r| (r.nominal, -0.5 * (r.fwd + r.rev) * 1e3))
                     .collect();
                 let same = a.lead_error.enabled
-                    && pts.iter().all(|&(x, e)| (super::lead_error_um(&a.lead_error, x) - e).abs() <= 1e-6);
+                    && pts
+                        .iter()
+                        .all(|&(x, e)| (super::lead_error_um(&a.lead_error, x) - e).abs() <= 1e-6);
                 if !same {
                     a.lead_error.enabled = pts.iter().any(|p| p.1 != 0.0);
                     a.lead_error.amplitude_um = 0.0;
@@ -658,10 +737,17 @@ pub fn import(ini_path: &std::path::Path, base: &Preset) -> Result<Preset, super
             v * 60.0
         };
     }
-    bad.extend(p.validate().into_iter().map(|e| Violation::new(e.path, e.reason)));
+    bad.extend(
+        p.validate()
+            .into_iter()
+            .map(|e| Violation::new(e.path, e.reason)),
+    );
     if bad.is_empty() {
         Ok(p)
     } else {
-        Err(super::ExportError::Import { file, violations: bad })
+        Err(super::ExportError::Import {
+            file,
+            violations: bad,
+        })
     }
 }

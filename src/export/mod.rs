@@ -142,18 +142,13 @@ pub enum ExportError {
 }
 
 /// Options of an export.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct ExportOptions {
     /// Machine time the report's simulations cover (default: the scenario, at most
     /// [`DEFAULT_HORIZON_S`]).
     pub horizon_s: Option<f64>,
 }
 
-impl Default for ExportOptions {
-    fn default() -> Self {
-        ExportOptions { horizon_s: None }
-    }
-}
 
 /// The report's simulations stop here unless asked otherwise, so an export takes seconds.
 pub const DEFAULT_HORIZON_S: f64 = 60.0;
@@ -525,7 +520,10 @@ pub fn num(x: f64) -> String {
 /// A number rounded to `digits` decimals for controls with a fixed input format.
 pub fn fixed(x: f64, digits: usize) -> String {
     let s = format!("{x:.digits$}");
-    if s.trim_start_matches('-').chars().all(|c| c == '0' || c == '.') {
+    if s.trim_start_matches('-')
+        .chars()
+        .all(|c| c == '0' || c == '.')
+    {
         s.trim_start_matches('-').to_owned()
     } else {
         s
@@ -559,7 +557,11 @@ pub fn equidistant(points: &[(f64, f64)], max_points: usize) -> (Vec<(f64, f64)>
     let step = width / (n - 1) as f64;
     let out: Vec<(f64, f64)> = (0..n)
         .map(|i| {
-            let x = if i + 1 == n { last.0 } else { first.0 + step * i as f64 };
+            let x = if i + 1 == n {
+                last.0
+            } else {
+                first.0 + step * i as f64
+            };
             (x, crate::table::interp(points, x))
         })
         .collect();
@@ -573,7 +575,10 @@ pub fn equidistant(points: &[(f64, f64)], max_points: usize) -> (Vec<(f64, f64)>
 }
 
 /// The cross tables whose compensated axis is `axis`, with their index.
-pub(crate) fn cross_into<'a>(p: &'a Preset, axis: &str) -> Vec<(usize, &'a crate::comp::cross::CrossTable)> {
+pub(crate) fn cross_into<'a>(
+    p: &'a Preset,
+    axis: &str,
+) -> Vec<(usize, &'a crate::comp::cross::CrossTable)> {
     p.cross
         .iter()
         .enumerate()

@@ -274,8 +274,8 @@ impl Sim {
                 reason: format!("{horizon} s must be a positive time"),
             });
         }
-        let mut m = Machine::new(preset, programs)
-            .map_err(|e| ExportError::Simulation(e.to_string()))?;
+        let mut m =
+            Machine::new(preset, programs).map_err(|e| ExportError::Simulation(e.to_string()))?;
         m.set_recording(false);
         let max_k = (horizon / m.t3_s).ceil() as u64;
         let n = m.axes.len();
@@ -346,7 +346,12 @@ impl Sim {
         )
     }
 
-    fn run(&self, changes: &[Change], axes: &[usize], remove_offset: bool) -> Result<ErrFigures, ExportError> {
+    fn run(
+        &self,
+        changes: &[Change],
+        axes: &[usize],
+        remove_offset: bool,
+    ) -> Result<ErrFigures, ExportError> {
         let sim_err = |e: String| ExportError::Simulation(e);
         let mut p = self.preset.clone();
         let mut lcnc: Vec<(usize, LinuxCncComp)> = Vec::new();
@@ -522,7 +527,12 @@ pub(crate) fn direction_text(d: &crate::comp::backlash::DirectionParams) -> Stri
         OutputMode::Lump => "lump".into(),
         OutputMode::Distance => format!("distance (N = {}, B = {} µm)", d.parts_n, d.step_b_um),
         OutputMode::Time => format!("time (M = {} cycles)", d.cycles_m),
-        OutputMode::Function => format!("function of {:?} ({} points)", d.function_basis, d.function.len()).to_lowercase(),
+        OutputMode::Function => format!(
+            "function of {:?} ({} points)",
+            d.function_basis,
+            d.function.len()
+        )
+        .to_lowercase(),
     }
 }
 
@@ -546,8 +556,15 @@ pub(crate) fn backlash_modes_as_lump(ctx: &Ctx, i: usize, control: &str) -> Vec<
         },
         ..b.clone()
     };
-    for (name, d) in [("plus_to_minus", &b.plus_to_minus), ("minus_to_plus", &b.minus_to_plus)] {
-        let setting = format!("axes[{}].backlash.{name}.mode = {}", a.name, direction_text(d));
+    for (name, d) in [
+        ("plus_to_minus", &b.plus_to_minus),
+        ("minus_to_plus", &b.minus_to_plus),
+    ] {
+        let setting = format!(
+            "axes[{}].backlash.{name}.mode = {}",
+            a.name,
+            direction_text(d)
+        );
         if d.mode == OutputMode::Lump {
             out.push(Pending::mapped(
                 setting,
@@ -581,23 +598,33 @@ pub(crate) fn quadrant_omitted(ctx: &Ctx, i: usize, why: &str) -> Vec<Pending> {
         return vec![];
     }
     let q = &a.quadrant;
-    vec![Pending::not_representable(
-        format!(
-            "axes[{}].quadrant (adaptive = {}, inject {:?}, M0 = {} / T0 = {} ms, P0 = {} mm)",
-            a.name,
-            q.adaptive,
-            q.inject,
-            match q.inject {
-                crate::comp::quadrant::Injection::Torque => format!("{} N·m", q.m0_torque_nm),
-                crate::comp::quadrant::Injection::Velocity => format!("{} mm/s", q.m0_vel_mm_per_s),
-                crate::comp::quadrant::Injection::Position => format!("{} µm", q.m0_pos_um),
-            },
-            q.t0_ms,
-            q.p0_mm
+    vec![
+        Pending::not_representable(
+            format!(
+                "axes[{}].quadrant (adaptive = {}, inject {:?}, M0 = {} / T0 = {} ms, P0 = {} mm)",
+                a.name,
+                q.adaptive,
+                q.inject,
+                match q.inject {
+                    crate::comp::quadrant::Injection::Torque => format!("{} N·m", q.m0_torque_nm),
+                    crate::comp::quadrant::Injection::Velocity =>
+                        format!("{} mm/s", q.m0_vel_mm_per_s),
+                    crate::comp::quadrant::Injection::Position => format!("{} µm", q.m0_pos_um),
+                },
+                q.t0_ms,
+                q.p0_mm
+            ),
+            &format!("{why}; nearest: none (omitted)"),
+        )
+        .sim(
+            vec![Change::Quadrant {
+                axis: i,
+                params: None,
+            }],
+            vec![i],
+            false,
         ),
-        &format!("{why}; nearest: none (omitted)"),
-    )
-    .sim(vec![Change::Quadrant { axis: i, params: None }], vec![i], false)]
+    ]
 }
 
 /// A thermal correction the target cannot carry as a model.
@@ -606,11 +633,20 @@ pub(crate) fn thermal_omitted(ctx: &Ctx, i: usize, why: &str) -> Vec<Pending> {
     if !a.thermal.enabled {
         return vec![];
     }
-    vec![Pending::not_representable(
-        thermal_setting(a),
-        &format!("{why}; nearest: none (omitted)"),
-    )
-    .sim(vec![Change::Thermal { axis: i, frozen: false }], vec![i], false)]
+    vec![
+        Pending::not_representable(
+            thermal_setting(a),
+            &format!("{why}; nearest: none (omitted)"),
+        )
+        .sim(
+            vec![Change::Thermal {
+                axis: i,
+                frozen: false,
+            }],
+            vec![i],
+            false,
+        ),
+    ]
 }
 
 pub(crate) fn thermal_setting(a: &crate::preset::AxisParams) -> String {
@@ -691,7 +727,11 @@ pub(crate) fn pitch_entry(
     let note = format!(
         "The measured lead error is a property of the screw, which axisbench's NC does not compensate; every control compensates it with a pitch-error table, so the export writes the table that cancels it (correction = −error) at {} points over the travel {lo}…{hi} mm{} (the scenario's travel and the measured table; outside it the end values are held)",
         table.points.len(),
-        if table.equidistant { ", equidistant" } else { "" }
+        if table.equidistant {
+            ", equidistant"
+        } else {
+            ""
+        }
     );
     let status = if table.residual_um <= 1e-9 {
         Status::Derived
@@ -720,6 +760,8 @@ pub(crate) fn servo_entries(ctx: &Ctx, i: usize, where_: &str) -> Vec<Pending> {
             "axes[{}].servo (Kp = {}/s, Kv = {} N·s/m, Ki = {}/s, vff = {}, aff = {})",
             a.name, s.kp_per_s, s.kv_n_s_per_m, s.ki_per_s, s.vff, s.aff
         ),
-        &format!("the loop gains belong to {where_}, which this export does not write; they set the following-error limits derived above"),
+        &format!(
+            "the loop gains belong to {where_}, which this export does not write; they set the following-error limits derived above"
+        ),
     )]
 }

@@ -30,6 +30,7 @@
 //!     action updates the setting data from temperatures, the control has no model;
 //!   - MD32000 $MA_MAX_AX_VELO (mm/min), MD32300 $MA_MAX_AX_ACCEL (m/s²), MD32200
 //!     $MA_POS_CTRLGAIN (servo gain factor Kv in (m/min)/mm = Kp·60/1000).
+//!
 //! Axis AXn is the preset's n-th axis (machine axis numbering from 1).
 
 use super::report::{self, Change, ErrFigures, Pending};
@@ -58,10 +59,16 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         md += &format!("; axis '{}'\n", a.name);
         md += &format!("$MA_MAX_AX_VELO[{ax}]={}\n", num(lim.max_vel_mm_s * 60.0));
         md += &format!("$MA_MAX_AX_ACCEL[{ax}]={}\n", num(lim.max_acc_mm_s2 * 1e-3));
-        md += &format!("$MA_POS_CTRLGAIN[0,{ax}]={}\n", num(a.servo.kp_per_s * 0.06));
+        md += &format!(
+            "$MA_POS_CTRLGAIN[0,{ax}]={}\n",
+            num(a.servo.kp_per_s * 0.06)
+        );
         entries.push(Pending::derived(
             "nc.rapid_mm_per_min",
-            format!("MD32000 $MA_MAX_AX_VELO[{ax}] = {}", num(lim.max_vel_mm_s * 60.0)),
+            format!(
+                "MD32000 $MA_MAX_AX_VELO[{ax}] = {}",
+                num(lim.max_vel_mm_s * 60.0)
+            ),
             "the rapid traverse, mm/min",
         ));
         entries.push(Pending::approximated(
@@ -77,7 +84,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         // ---- backlash ----
         if a.backlash.enabled {
             let q = a.backlash.q_um / 1000.0;
-            md += &format!("$MA_BACKLASH[0,{ax}]={}\n$MA_BACKLASH_FACTOR[0,{ax}]=1\n", num(q));
+            md += &format!(
+                "$MA_BACKLASH[0,{ax}]={}\n$MA_BACKLASH_FACTOR[0,{ax}]=1\n",
+                num(q)
+            );
             entries.push(Pending::mapped(
                 format!("axes[{}].backlash.q_um = {}", a.name, a.backlash.q_um),
                 format!("MD32450 $MA_BACKLASH[0,{ax}] = {} mm, MD32452 $MA_BACKLASH_FACTOR[0,{ax}] = 1", num(q)),
@@ -92,19 +102,32 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             if a.lead_error.amplitude_um == 0.0 && a.lead_error.table.len() > MAX_POINTS {
                 violations.push(Violation::new(
                     format!("axes[{}].lead_error.table", a.name),
-                    format!("{} points; an LEC table here holds at most {MAX_POINTS}", a.lead_error.table.len()),
+                    format!(
+                        "{} points; an LEC table here holds at most {MAX_POINTS}",
+                        a.lead_error.table.len()
+                    ),
                 ));
             }
             let pt = super::pitch_table(&a.lead_error, ctx.axes[i].travel_mm, MAX_POINTS, true);
-            let step = if pt.points.len() > 1 { pt.points[1].0 - pt.points[0].0 } else { 1.0 };
-            eec += &format!("; axis '{}': leadscrew error compensation, {} points\n", a.name, pt.points.len());
+            let step = if pt.points.len() > 1 {
+                pt.points[1].0 - pt.points[0].0
+            } else {
+                1.0
+            };
+            eec += &format!(
+                "; axis '{}': leadscrew error compensation, {} points\n",
+                a.name,
+                pt.points.len()
+            );
             for (n, (_, c)) in pt.points.iter().enumerate() {
                 eec += &format!("$AA_ENC_COMP[0,{n},{ax}]={}\n", num(c / 1000.0));
             }
             let (lo, hi) = (pt.points[0].0, pt.points[pt.points.len() - 1].0);
             eec += &format!(
                 "$AA_ENC_COMP_STEP[0,{ax}]={}\n$AA_ENC_COMP_MIN[0,{ax}]={}\n$AA_ENC_COMP_MAX[0,{ax}]={}\n$AA_ENC_COMP_IS_MODULO[0,{ax}]=0\n",
-                num(step), num(lo), num(hi)
+                num(step),
+                num(lo),
+                num(hi)
             );
             md += &format!(
                 "$MA_MM_ENC_COMP_MAX_POINTS[0,{ax}]={}\n$MA_ENC_COMP_ENABLE[0,{ax}]=1\n",
@@ -183,7 +206,11 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
                 .sim(vec![Change::Thermal { axis: i, frozen: true }], vec![i], false),
             );
         }
-        entries.extend(report::servo_entries(ctx, i, "the SINAMICS drive (speed controller)"));
+        entries.extend(report::servo_entries(
+            ctx,
+            i,
+            "the SINAMICS drive (speed controller)",
+        ));
     }
     // ---- CEC tables ----
     let mut t = 0usize;
@@ -196,12 +223,18 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         if table.points.len() > MAX_POINTS {
             violations.push(Violation::new(
                 format!("cross[{ci}].points"),
-                format!("{} points; a CEC table here holds at most {MAX_POINTS}", table.points.len()),
+                format!(
+                    "{} points; a CEC table here holds at most {MAX_POINTS}",
+                    table.points.len()
+                ),
             ));
             continue;
         }
         let (pts, step, resid_um) = super::equidistant(&table.points, MAX_POINTS);
-        let mut s = format!("; cross[{ci}]: {} = f({})\n", table.comp_axis, table.base_axis);
+        let mut s = format!(
+            "; cross[{ci}]: {} = f({})\n",
+            table.comp_axis, table.base_axis
+        );
         for (n, (_, v)) in pts.iter().enumerate() {
             s += &format!("$AN_CEC[{t},{n}]={}\n", num(v / 1000.0));
         }
@@ -227,17 +260,25 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         );
         let setting = report::cross_setting(ci, table);
         if resid_um == 0.0 {
-            entries.push(Pending::mapped(setting, target, "equidistant already; values µm → mm; ends held as in axisbench"));
+            entries.push(Pending::mapped(
+                setting,
+                target,
+                "equidistant already; values µm → mm; ends held as in axisbench",
+            ));
         } else {
             entries.push(
-                Pending::approximated(setting, target, "CEC tables are equidistant: resampled at the smallest spacing")
-                    .evaluated(ErrFigures {
-                        method: "evaluated along the table: original vs resampled interpolation".into(),
-                        correction_max_um: resid_um,
-                        correction_rms_um: None,
-                        position_error_max_um: None,
-                        constant_offset_um: 0.0,
-                    }),
+                Pending::approximated(
+                    setting,
+                    target,
+                    "CEC tables are equidistant: resampled at the smallest spacing",
+                )
+                .evaluated(ErrFigures {
+                    method: "evaluated along the table: original vs resampled interpolation".into(),
+                    correction_max_um: resid_um,
+                    correction_rms_um: None,
+                    position_error_max_um: None,
+                    constant_offset_um: 0.0,
+                }),
             );
         }
         t += 1;

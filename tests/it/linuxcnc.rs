@@ -57,7 +57,9 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 fn base() -> Preset {
-    preset::load_embedded("default.ron").expect("default").preset
+    preset::load_embedded("default.ron")
+        .expect("default")
+        .preset
 }
 
 /// The three exported machines.
@@ -272,10 +274,7 @@ fn exported_presets_match_the_real_linuxcnc_every_servo_period() {
         assert!(r.reversals >= 7, "{name}: {} reversals", r.reversals);
         match name {
             "comp_table" => {
-                assert!(
-                    out.join("joint0.comp").is_file(),
-                    "a comp file was written"
-                );
+                assert!(out.join("joint0.comp").is_file(), "a comp file was written");
                 assert!(
                     r.distinct_corr > 100,
                     "the trims vary along the table: {} values",
