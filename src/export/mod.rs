@@ -149,7 +149,6 @@ pub struct ExportOptions {
     pub horizon_s: Option<f64>,
 }
 
-
 /// The report's simulations stop here unless asked otherwise, so an export takes seconds.
 pub const DEFAULT_HORIZON_S: f64 = 60.0;
 
