@@ -85,3 +85,67 @@ fn a_bad_program_names_its_line() {
         "{stderr}"
     );
 }
+
+#[test]
+fn export_and_import_through_the_binary() {
+    let dir = std::env::temp_dir().join(format!("axisbench-cli-x-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let o = bin()
+        .args([
+            "export",
+            "--preset",
+            "presets/vertical_z_gravity.ron",
+            "--to",
+            "linuxcnc",
+            "--horizon",
+            "5",
+            "--out",
+        ])
+        .arg(dir.join("lcnc"))
+        .output()
+        .expect("runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("linuxcnc.ini") && stdout.contains("not representable"),
+        "{stdout}"
+    );
+    let out = dir.join("tuned.ron");
+    let o = bin()
+        .args(["import", "--from", "linuxcnc", "--in"])
+        .arg(dir.join("lcnc"))
+        .args(["--base", "presets/vertical_z_gravity.ron", "--out"])
+        .arg(&out)
+        .output()
+        .expect("runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let back = axisbench::preset::load(&out.display().to_string()).expect("valid preset");
+    let orig = axisbench::preset::load("presets/vertical_z_gravity.ron").expect("preset");
+    assert_eq!(
+        back.preset, orig.preset,
+        "export → import onto itself is exact"
+    );
+    assert!(
+        dir.join("vertical_z_gravity.ngc").is_file(),
+        "program copied"
+    );
+    let o = bin()
+        .args([
+            "export",
+            "--preset",
+            "presets/default.ron",
+            "--to",
+            "mazak",
+            "--out",
+        ])
+        .arg(dir.join("x"))
+        .output()
+        .expect("runs");
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("targets are: ron, linuxcnc"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
