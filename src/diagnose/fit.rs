@@ -23,6 +23,10 @@ pub const MIN_GREEDY_SHRINK: f64 = 0.15;
 const GREEDY_TRY: usize = 5;
 /// Residual rows handed to the least-squares solver at most (the record is strided).
 const MAX_LM_ROWS: usize = 60_000;
+/// The solver's iterations replay at most this many samples of the fitting part (its
+/// beginning); the fitted candidate is then scored on all of it. This bounds the cost of a
+/// long record: the iterations are most of the work.
+pub const MAX_LM_SAMPLES: usize = 200_000;
 
 /// Where the fitting part ends and where the held-out part comes from.
 pub struct Split<'a> {
@@ -186,7 +190,7 @@ impl<'a> Engine<'a> {
             sims: AtomicUsize::new(0),
             sims_expected: AtomicUsize::new(200),
         };
-        e.stride = e.split.n_fit.div_ceil(MAX_LM_ROWS).max(1);
+        e.stride = e.n_lm().div_ceil(MAX_LM_ROWS).max(1);
         (e.progress.report)(0.0, "replaying the nominal model");
         let nom = e.evaluate(&cand)?;
         let floor = 1e-12;
@@ -219,7 +223,7 @@ impl<'a> Engine<'a> {
         self.tick("fitting")?;
         let mut m = c.model.clone();
         m.events.clone_from(&c.ev_main);
-        Ok(simulate(&m, self.split.main, self.split.n_fit))
+        Ok(simulate(&m, self.split.main, self.n_lm()))
     }
 
     /// Simulates both parts and returns the residuals.
@@ -259,6 +263,11 @@ impl<'a> Engine<'a> {
                 })
             }
         }
+    }
+
+    /// Samples the solver's iterations replay.
+    fn n_lm(&self) -> usize {
+        self.split.n_fit.min(MAX_LM_SAMPLES)
     }
 
     fn anomaly_mask(&self, nom: &Eval) -> Vec<bool> {
@@ -323,7 +332,7 @@ impl<'a> Engine<'a> {
     fn lm_rows(&self, s: &SimOut) -> DVector<f64> {
         let main = self.split.main;
         let st = self.stride;
-        let mut v = Vec::with_capacity(2 * self.split.n_fit / st + 2);
+        let mut v = Vec::with_capacity(2 * self.n_lm() / st + 2);
         for k in (0..s.pos_m.len()).step_by(st) {
             v.push((main.pos_m[k] - s.pos_m[k]) / self.sig_pos);
         }
