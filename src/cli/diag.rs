@@ -70,9 +70,20 @@ pub fn diagnose(a: Args) -> Result<()> {
         cancel: &cancel,
     };
     let t0 = Instant::now();
-    let rep = diagnose::diagnose(preset, &main, validate.as_ref().map(|v| &v.0), &opts, &progress)?;
+    let rep = diagnose::diagnose(
+        preset,
+        &main,
+        validate.as_ref().map(|v| &v.0),
+        &opts,
+        &progress,
+    )?;
     let secs = t0.elapsed().as_secs_f64();
-    print_summary(&rep, &main_file, validate.as_ref().map(|v| v.1.as_str()), secs);
+    print_summary(
+        &rep,
+        &main_file,
+        validate.as_ref().map(|v| v.1.as_str()),
+        secs,
+    );
     if let Some(path) = &a.report {
         let json = serde_json::to_string_pretty(&rep)?;
         axisbench::fsutil::write_atomic(path, json.as_bytes())
@@ -122,7 +133,13 @@ fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
     );
     say!("time offset record vs model: {:+.3} ms", r.time_offset_ms);
     say!("\nWHERE (held-out position residual of the nominal model, um):");
-    say!("  {:<22} {:>7} {:>9} {:>9}", "regime", "share", "rms", "peak");
+    say!(
+        "  {:<22} {:>7} {:>9} {:>9}",
+        "regime",
+        "share",
+        "rms",
+        "peak"
+    );
     for g in &r.regimes {
         say!(
             "  {:<22} {:>6.1}% {:>9.3} {:>9.3}",

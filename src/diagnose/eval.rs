@@ -126,7 +126,10 @@ pub fn command(rng: &mut Rng, duration_s: f64, t3_s: f64) -> Vec<f64> {
             ((x + rng.sign() * s).clamp(0.0, 0.2), rng.range(0.005, 0.02))
         } else if kind < 0.4 {
             // Slow creep (Stribeck region).
-            ((x + rng.sign() * rng.range(1e-3, 5e-3)).clamp(0.0, 0.2), rng.range(0.0005, 0.003))
+            (
+                (x + rng.sign() * rng.range(1e-3, 5e-3)).clamp(0.0, 0.2),
+                rng.range(0.0005, 0.003),
+            )
         } else {
             (rng.range(0.0, 0.2), rng.range(0.02, 0.12))
         };
@@ -196,7 +199,9 @@ fn hide(e: Effect, rng: &mut Rng, m: &mut Model, n: usize, params: &mut BTreeMap
         Effect::ViscousFriction => vec![rng.sign() * rng.range(800.0, 3000.0)],
         Effect::StrokeFriction => vec![rng.range(1.0, 2.5), rng.range(4.0, 15.0)],
         Effect::Backlash => vec![rng.range(6.0, 25.0)],
-        Effect::BacklashAsymmetry => vec![rng.range(8.0, 25.0), rng.sign() * rng.range(100.0, 400.0)],
+        Effect::BacklashAsymmetry => {
+            vec![rng.range(8.0, 25.0), rng.sign() * rng.range(100.0, 400.0)]
+        }
         Effect::ConstantForce => vec![rng.sign() * rng.range(40.0, 200.0)],
         Effect::Compliance => vec![rng.range(8.0, 40.0), rng.range(500.0, 3000.0)],
         Effect::ThermalGrowth => vec![rng.range(3000.0, 8000.0), rng.range(8.0, 20.0)],
@@ -296,7 +301,13 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
     rec.pos_m = sim
         .pos_m
         .iter()
-        .map(|p| if quantized { *p } else { p + pos_noise_m * rng.normal() })
+        .map(|p| {
+            if quantized {
+                *p
+            } else {
+                p + pos_noise_m * rng.normal()
+            }
+        })
         .collect();
     rec.force_n = Some(
         sim.force_n
@@ -431,16 +442,28 @@ pub fn run(
         cfg.only.clone()
     };
     for i in list {
-        progress(i as f64 / cfg.cases as f64, &format!("case {}/{}", i + 1, cfg.cases));
+        progress(
+            i as f64 / cfg.cases as f64,
+            &format!("case {}/{}", i + 1, cfg.cases),
+        );
         let c = case(cfg.seed, i, cfg.duration_s)?;
         let rep = super::diagnose(&c.nominal, &c.record, None, &Options::default(), &p)?;
         let r = CaseResult {
             hidden: c.hidden.clone(),
             verdict: rep.verdict.clone(),
-            top2: rep.ranking.iter().take(2).map(|e| e.effect.clone()).collect(),
+            top2: rep
+                .ranking
+                .iter()
+                .take(2)
+                .map(|e| e.effect.clone())
+                .collect(),
             shrink: rep.shrink,
         };
-        let params: Vec<String> = c.params.iter().map(|(k, v)| format!("{k}={v:.3}")).collect();
+        let params: Vec<String> = c
+            .params
+            .iter()
+            .map(|(k, v)| format!("{k}={v:.3}"))
+            .collect();
         let ranked: Vec<String> = rep
             .ranking
             .iter()

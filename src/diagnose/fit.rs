@@ -277,7 +277,10 @@ impl<'a> Engine<'a> {
         let ch = self.combined(&nom.hold_pos, nom.hold_force.as_deref());
         let mut fb: Vec<f64> = cf.chunks(w).map(rms).collect();
         fb.sort_by(f64::total_cmp);
-        let p95 = fb.get(fb.len() * 95 / 100).copied().unwrap_or(f64::INFINITY);
+        let p95 = fb
+            .get(fb.len() * 95 / 100)
+            .copied()
+            .unwrap_or(f64::INFINITY);
         let thr = 3.0 * p95;
         let mut mask = Vec::with_capacity(ch.len());
         for c in ch.chunks(w) {
@@ -745,7 +748,8 @@ impl<'a> Engine<'a> {
         for (f, s) in &mut out {
             if s.significant && s.shrink < tol_best + 0.5 * MIN_SHRINK {
                 s.significant = false;
-                f.note = "explains no more than a within-tolerance correction of the nominal".into();
+                f.note =
+                    "explains no more than a within-tolerance correction of the nominal".into();
             }
         }
         out.sort_by(|a, b| b.1.score.total_cmp(&a.1.score));
@@ -1023,17 +1027,13 @@ fn detect_events(c: &[f64], off: usize, t3_s: f64, labels: &[Regime]) -> Vec<(us
             let i1 = ((end + 1) * w).min(c.len());
             // A burst that sits on a command reversal is what backlash or friction does;
             // leave those to the state-dependent candidates.
-            let on_reversal = labels
-                .get(off + i0..off + i1)
-                .is_some_and(|l| {
-                    l.iter()
-                        .filter(|r| {
-                            matches!(r, Regime::ReversalNegToPos | Regime::ReversalPosToNeg)
-                        })
-                        .count()
-                        * 2
-                        > l.len()
-                });
+            let on_reversal = labels.get(off + i0..off + i1).is_some_and(|l| {
+                l.iter()
+                    .filter(|r| matches!(r, Regime::ReversalNegToPos | Regime::ReversalPosToNeg))
+                    .count()
+                    * 2
+                    > l.len()
+            });
             // Only a short burst can be a reversal's doing; a long one that happens to
             // overlap reversals (short strokes) is still a disturbance.
             let short = ((i1 - i0) as f64) * t3_s <= 2.0 * regimes::REVERSAL_HALF_WINDOW_S;
@@ -1067,11 +1067,7 @@ pub fn build_report(
     let t: Vec<f64> = (0..hold_rec.len()).map(|i| hold_rec.t_s(i)).collect();
     let pos_mm: Vec<f64> = hold_rec.pos_m.iter().map(|x| x * 1e3).collect();
     let win_len = ((0.1 / hold_rec.t3_s).round() as usize).max(1);
-    let ranking: Vec<RankEntry> = out
-        .ranking
-        .iter()
-        .map(|(f, s)| rank_entry(f, s))
-        .collect();
+    let ranking: Vec<RankEntry> = out.ranking.iter().map(|(f, s)| rank_entry(f, s)).collect();
     let selected: Vec<String> = out
         .selected
         .iter()
@@ -1117,7 +1113,12 @@ pub fn build_report(
         holdout_masked: eng.hold_mask.iter().filter(|k| !**k).count(),
         units: "position residuals in um (measured - simulated); force residuals in N".into(),
         verdict,
-        shrink: 1.0 - out.selected.iter().map(|(_, s)| 1.0 - s.shrink).product::<f64>(),
+        shrink: 1.0
+            - out
+                .selected
+                .iter()
+                .map(|(_, s)| 1.0 - s.shrink)
+                .product::<f64>(),
         selected,
         ranking,
         regimes: reg_b,

@@ -107,7 +107,10 @@ pub fn pick_axis(
 ) -> Result<String, DiagnoseError> {
     let have = trace.axes();
     let names: Vec<&str> = preset.axes.iter().map(|a| a.name.as_str()).collect();
-    let foreign: Vec<&String> = have.iter().filter(|a| !names.contains(&a.as_str())).collect();
+    let foreign: Vec<&String> = have
+        .iter()
+        .filter(|a| !names.contains(&a.as_str()))
+        .collect();
     if !foreign.is_empty() {
         return Err(DiagnoseError::Record {
             file: file.to_owned(),
