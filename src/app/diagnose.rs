@@ -160,6 +160,8 @@ fn regime_color(r: Regime) -> egui::Color32 {
 
 pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     wb.poll_diagnosis();
+    // Measured before the tables, which may ask for more width than the panel has.
+    let full_w = ui.available_width();
     ui.horizontal(|ui| {
         let l = ui.label("Measured record");
         ui.add(egui::TextEdit::singleline(&mut wb.diag.trace_path).desired_width(320.0))
@@ -245,11 +247,12 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             ));
         }
     });
-    ui.columns(2, |cols| {
+    ui.horizontal_top(|ui| {
         egui::ScrollArea::vertical()
             .id_salt("ranking")
             .max_height(160.0)
-            .show(&mut cols[0], |ui| {
+            .max_width(0.62 * full_w)
+            .show(ui, |ui| {
                 egui::Grid::new("ranking_grid")
                     .striped(true)
                     .show(ui, |ui| {
@@ -274,22 +277,20 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                         }
                     });
             });
-        egui::Grid::new("regime_grid")
-            .striped(true)
-            .show(&mut cols[1], |ui| {
-                ui.strong("regime");
-                ui.strong("share");
-                ui.strong("rms um");
-                ui.strong("after");
+        egui::Grid::new("regime_grid").striped(true).show(ui, |ui| {
+            ui.strong("regime");
+            ui.strong("share");
+            ui.strong("rms um");
+            ui.strong("after");
+            ui.end_row();
+            for (g, c) in rep.regimes.iter().zip(&rep.per_regime) {
+                ui.label(&g.name);
+                ui.label(format!("{:.1} %", g.share * 100.0));
+                ui.label(format!("{:.3}", g.rms));
+                ui.label(format!("{:.3}", c.rms_after));
                 ui.end_row();
-                for (g, c) in rep.regimes.iter().zip(&rep.per_regime) {
-                    ui.label(&g.name);
-                    ui.label(format!("{:.1} %", g.share * 100.0));
-                    ui.label(format!("{:.3}", g.rms));
-                    ui.label(format!("{:.3}", c.rms_after));
-                    ui.end_row();
-                }
-            });
+            }
+        });
     });
     let Some(s) = &rep.series else { return };
     let h = ui.available_height();
@@ -300,8 +301,10 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         .iter()
         .chain(&s.after_um)
         .fold((0.0f64, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+    let w = full_w;
     Plot::new("diag_time")
         .height(h * 0.5)
+        .width(w)
         .legend(Legend::default())
         .x_axis_label("t [s]")
         .y_axis_label("residual [um]")
@@ -337,23 +340,27 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             pu.line(Line::new("nominal", pts(&s.before_um)));
             pu.line(Line::new("with fitted effects", pts(&s.after_um)));
         });
-    ui.columns(2, |cols| {
+    ui.horizontal(|ui| {
+        let w0 = 0.5 * full_w - 6.0;
         Plot::new("diag_pos")
             .height(h * 0.4)
+            .width(w0)
             .x_axis_label("position [mm]")
             .y_axis_label("residual [um]")
-            .show(&mut cols[0], |pu| {
+            .show(ui, |pu| {
                 let pts: Vec<[f64; 2]> = (0..s.pos_mm.len())
                     .step_by(step)
                     .map(|k| [s.pos_mm[k], s.before_um[k]])
                     .collect();
                 pu.points(Points::new("residual vs position", PlotPoints::new(pts)).radius(1.0));
             });
+        let w1 = w0;
         Plot::new("diag_time_bins")
             .height(h * 0.4)
+            .width(w1)
             .x_axis_label("t [s]")
             .y_axis_label("rms residual [um]")
-            .show(&mut cols[1], |pu| {
+            .show(ui, |pu| {
                 let bars: Vec<Bar> = rep
                     .time_bins
                     .iter()
