@@ -944,9 +944,10 @@ fn corr_length(r: &[f64]) -> f64 {
 /// Least-squares time offset δ in r ≈ −v·δ (v from the measured position).
 fn time_offset_ms(rec: &Record, r_pos: &[f64]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
-    for k in 1..r_pos.len().min(rec.len()) - 1 {
+    let n = r_pos.len().min(rec.len());
+    for (k, r) in r_pos.iter().enumerate().take(n.saturating_sub(1)).skip(1) {
         let v = (rec.pos_m[k + 1] - rec.pos_m[k - 1]) / (2.0 * rec.t3_s);
-        num += -v * r_pos[k];
+        num += -v * r;
         den += v * v;
     }
     if den > 0.0 { num / den * 1e3 } else { 0.0 }

@@ -80,11 +80,11 @@ pub fn classify(cmd_m: &[f64], t3_s: f64) -> Vec<Regime> {
     let w = ((REVERSAL_HALF_WINDOW_S / t3_s).round() as usize).max(1);
     let mut last_dir = 0.0;
     let mut last_moving = 0usize;
-    for i in 0..n {
-        if vs[i].abs() <= v_eps {
+    for (i, &v) in vs.iter().enumerate() {
+        if v.abs() <= v_eps {
             continue;
         }
-        let d = vs[i].signum();
+        let d = v.signum();
         if last_dir != 0.0 && d != last_dir {
             // The reversal is the span between the last sample of the old direction and the
             // first of the new one, widened on both sides.
@@ -168,7 +168,7 @@ pub fn per_bin(r: &[f64], key: &[f64], nbins: usize) -> Vec<BinStat> {
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
             (a.min(x), b.max(x))
         });
-    if !(hi > lo) || nbins == 0 {
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) || nbins == 0 {
         return vec![];
     }
     let total: f64 = r.iter().map(|x| x * x).sum::<f64>().max(f64::MIN_POSITIVE);

@@ -62,7 +62,7 @@ impl Record {
             )));
         }
         for (i, w) in t.windows(2).enumerate() {
-            if !(w[1] > w[0]) {
+            if w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater) {
                 return Err(bad(format!(
                     "t[s] does not increase at data row {} ({} after {})",
                     i + 2,

@@ -32,7 +32,7 @@ fn run(preset: &preset::Preset, main: &Record, val: Option<&Record>, opts: &Opti
     diagnose::diagnose(preset, main, val, opts, &p).expect("diagnosis runs")
 }
 
-fn record(preset: &preset::Preset, path: &PathBuf) -> Record {
+fn record(preset: &preset::Preset, path: &std::path::Path) -> Record {
     let tr = diagnose::read_record(path, preset, None).expect("record reads");
     let file = path.display().to_string();
     let axis = diagnose::pick_axis(&tr, &file, preset, None).expect("axis");
