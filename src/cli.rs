@@ -10,6 +10,7 @@ use axisbench::analysis;
 use axisbench::comp::measure;
 use axisbench::comp::quadrant::Quadrant;
 use axisbench::comp::thermal::Thermal;
+use axisbench::export::{self, ExportOptions, Status, Target};
 use axisbench::preset::{self, LoadedPreset};
 
 /// println! that ends the program quietly when stdout is closed (`| head`), instead of
@@ -93,6 +94,41 @@ pub enum Command {
     Validate {
         #[arg(required = true)]
         presets: Vec<String>,
+    },
+    /// Export a preset to a controller: its files plus mapping_report.md/.json in DIR.
+    /// Nothing is written unless every check passes.
+    Export {
+        /// Preset file, or `embedded:NAME.ron` for a shipped one.
+        #[arg(long)]
+        preset: String,
+        /// ron, linuxcnc, siemens, heidenhain, beckhoff or fanuc.
+        #[arg(long)]
+        to: String,
+        /// Output folder (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Override a preset field before exporting (repeatable).
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
+        /// Machine time the report's simulations cover, s (default: the scenario, at most 60 s).
+        #[arg(long)]
+        horizon: Option<f64>,
+    },
+    /// Read an exported RON or LinuxCNC configuration back into a preset file.
+    Import {
+        /// ron or linuxcnc.
+        #[arg(long)]
+        from: String,
+        /// preset.ron / linuxcnc.ini, or the export folder holding it.
+        #[arg(long = "in")]
+        input: PathBuf,
+        /// Preset the LinuxCNC settings are read onto (joint n = its n-th axis); also where
+        /// missing program files are copied from.
+        #[arg(long, default_value = "embedded:default.ron")]
+        base: String,
+        /// Preset file to write.
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Print model throughput (axis-steps per second) for the full model.
     Bench {
@@ -251,6 +287,19 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Measure { what }) => measure(what),
         Some(Command::Calibrate { step }) => calibrate(step),
         Some(Command::Validate { presets }) => validate(&presets),
+        Some(Command::Export {
+            preset,
+            to,
+            out,
+            sets,
+            horizon,
+        }) => export(&preset, &to, &out, &sets, horizon),
+        Some(Command::Import {
+            from,
+            input,
+            base,
+            out,
+        }) => import(&from, &input, &base, &out),
         Some(Command::Bench {
             frames: Some(n), ..
         }) => {
@@ -551,6 +600,45 @@ fn validate(paths: &[String]) -> Result<()> {
     if bad > 0 {
         bail!("{bad} of {} presets are invalid", paths.len());
     }
+    Ok(())
+}
+
+fn export(
+    preset_path: &str,
+    to: &str,
+    out: &std::path::Path,
+    sets: &[String],
+    horizon: Option<f64>,
+) -> Result<()> {
+    let target: Target = to.parse().map_err(anyhow::Error::msg)?;
+    let lp = load_with_sets(preset_path, sets)?;
+    let texts = program_texts(&lp, None)?;
+    let opts = ExportOptions { horizon_s: horizon };
+    let ex = export::export(&lp.preset, &texts, target, &opts)?;
+    let written = ex.write(out)?;
+    for p in &written {
+        say!("wrote {}", p.display());
+    }
+    let r = &ex.report;
+    let count = |s: Status| r.with_status(s).count();
+    say!(
+        "{} settings: {} mapped, {} derived, {} approximated, {} not representable, {} without a documented parameter (see mapping_report.md)",
+        r.entries.len(),
+        count(Status::Mapped),
+        count(Status::Derived),
+        count(Status::Approximated),
+        count(Status::NotRepresentable),
+        count(Status::NoDocumentedParameter)
+    );
+    Ok(())
+}
+
+fn import(from: &str, input: &std::path::Path, base: &str, out: &std::path::Path) -> Result<()> {
+    let target: Target = from.parse().map_err(anyhow::Error::msg)?;
+    let base = preset::load(base)?;
+    let p = export::import::import(target, input, &base)?;
+    export::import::write_preset(&p, out, &base)?;
+    say!("wrote {}", out.display());
     Ok(())
 }
 

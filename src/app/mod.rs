@@ -17,6 +17,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
 use axisbench::analysis;
+use axisbench::export::{self, Target};
 use axisbench::preset::{self, Preset, SHIPPED_PRESETS};
 use axisbench::{Machine, Trace};
 
@@ -53,6 +54,11 @@ pub const SCENARIO_NOTES: &[(&str, &str)] = &[
         "The EMPS rig as published (no Coulomb friction): the nominal model the sim-to-real diagnosis starts from.",
     ),
 ];
+
+/// The label of a target's export button.
+pub fn export_label(t: Target) -> String {
+    format!("Export {}", t.name())
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Tab {
@@ -351,6 +357,35 @@ impl Workbench {
         }
     }
 
+    /// Exports the current preset to `target` into the folder `dir` (files and mapping
+    /// report), as `axisbench export` does; nothing is written if a check fails.
+    pub fn export_to(&mut self, target: Target, dir: PathBuf) {
+        if dir.as_os_str().is_empty() {
+            self.status = "export: type an output folder into the Path field first".into();
+            return;
+        }
+        let r = export::export(
+            &self.preset,
+            &self.programs,
+            target,
+            &export::ExportOptions::default(),
+        )
+        .and_then(|ex| ex.write(&dir).map(|w| (ex, w)));
+        self.status = match r {
+            Ok((ex, written)) => format!(
+                "exported to {} in {}: {} files, {} report entries ({} not representable)",
+                target.title(),
+                dir.display(),
+                written.len(),
+                ex.report.entries.len(),
+                ex.report
+                    .with_status(export::Status::NotRepresentable)
+                    .count()
+            ),
+            Err(e) => format!("not exported: {e}"),
+        };
+    }
+
     fn add_recent(&mut self, p: PathBuf) {
         self.recent.retain(|q| *q != p);
         self.recent.insert(0, p);
@@ -542,6 +577,20 @@ impl Workbench {
                         }
                         ui.close();
                     }
+                    ui.separator();
+                    ui.menu_button("Export", |ui| {
+                        for t in Target::ALL {
+                            if ui.button(format!("{}…", t.title())).clicked() {
+                                match rfd::FileDialog::new().pick_folder() {
+                                    Some(dir) => self.export_to(t, dir),
+                                    None => {
+                                        self.status = "no folder chosen (or no file dialog here: use the Path field and the Export buttons)".into()
+                                    }
+                                }
+                                ui.close();
+                            }
+                        }
+                    });
                 });
                 ui.menu_button("Scenarios", |ui| {
                     for name in SHIPPED_PRESETS {
@@ -600,6 +649,25 @@ impl Workbench {
         }
     }
 
+    /// One button per export target; the Path field names the output folder.
+    fn export_row_ui(&mut self, ui: &mut egui::Ui) {
+        ui.horizontal_wrapped(|ui| {
+            ui.label("Export to path:");
+            for t in Target::ALL {
+                if ui
+                    .button(export_label(t))
+                    .on_hover_text(format!(
+                        "{}: files and mapping_report.md into the folder in the Path field",
+                        t.title()
+                    ))
+                    .clicked()
+                {
+                    self.export_to(t, PathBuf::from(self.path_input.trim()));
+                }
+            }
+        });
+    }
+
     fn run_controls_ui(&mut self, ui: &mut egui::Ui) {
         ui.heading("Machine");
         if let Some((_, note)) = SCENARIO_NOTES.iter().find(|(n, _)| *n == self.origin) {
@@ -631,6 +699,7 @@ impl Workbench {
                 self.save_to(PathBuf::from(self.path_input.trim()));
             }
         });
+        self.export_row_ui(ui);
         ui.horizontal(|ui| {
             if ui.button("Record trace CSV to path").clicked() {
                 self.record_csv(PathBuf::from(self.path_input.trim()));

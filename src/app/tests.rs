@@ -312,4 +312,34 @@ fn diagnose_view_runs_and_applies_the_fitted_effect() {
         "the running machine took it"
     );
     assert!(wb.dirty(), "the fitted preset is an unsaved edit");
+fn export_buttons_write_the_target_files_and_the_report() {
+    let dir = std::env::temp_dir().join(format!("axisbench-gui-export-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut wb = default_wb();
+    wb.path_input = dir.display().to_string();
+    let mut h = harness(wb);
+    h.run();
+    h.get_by_label("Export linuxcnc").click();
+    h.run();
+    let ini = std::fs::read_to_string(dir.join("linuxcnc.ini")).expect("linuxcnc.ini written");
+    let q_mm = h.state().preset.axes[0].backlash.q_um / 1000.0;
+    assert!(
+        ini.contains(&format!("BACKLASH = {q_mm}")),
+        "the preset's backlash went into [JOINT_0]: {ini}"
+    );
+    let report = std::fs::read_to_string(dir.join("mapping_report.md")).expect("report written");
+    assert!(report.contains("BACKLASH"), "{report}");
+    assert!(
+        h.state().status.starts_with("exported"),
+        "{}",
+        h.state().status
+    );
+    h.get_by_label("Export fanuc").click();
+    h.run();
+    let fanuc = std::fs::read_to_string(dir.join("fanuc_parameters.txt")).expect("fanuc list");
+    assert!(
+        fanuc.contains("N1851 A1 P7"),
+        "7.4 µm → 7 detection units: {fanuc}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -16,6 +16,7 @@
 
 pub mod backlash;
 pub mod cross;
+pub mod linuxcnc;
 pub mod measure;
 pub mod quadrant;
 pub mod thermal;

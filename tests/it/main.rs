@@ -4,6 +4,8 @@ mod cli;
 mod common;
 mod comp;
 mod diagnose;
+mod export;
+mod linuxcnc;
 mod nc;
 mod physics;
 mod presets;
