@@ -312,6 +312,9 @@ fn diagnose_view_runs_and_applies_the_fitted_effect() {
         "the running machine took it"
     );
     assert!(wb.dirty(), "the fitted preset is an unsaved edit");
+}
+
+#[test]
 fn export_buttons_write_the_target_files_and_the_report() {
     let dir = std::env::temp_dir().join(format!("axisbench-gui-export-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
