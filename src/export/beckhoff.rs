@@ -133,7 +133,7 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         }
         // ---- cross compensation: one master per slave list ----
         let into: Vec<(usize, &crate::comp::cross::CrossTable)> = super::cross_into(p, &a.name);
-        if let Some((ci, t)) = into.first() {
+        if let Some((ci, t)) = into.first().filter(|(_, t)| !t.points.is_empty()) {
             if t.points.len() > CROSS_MAX_POINTS {
                 violations.push(Violation::new(
                     format!("cross[{ci}].points"),

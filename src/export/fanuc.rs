@@ -74,7 +74,7 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         .collect();
     lines.push(axis_line(1825, &gains));
     entries.push(Pending::derived(
-        "nc.rapid_mm_per_min",
+        format!("nc.rapid_mm_per_min = {}", p.nc.rapid_mm_per_min),
         format!(
             "No. 1420 = {} mm/min (every axis)",
             rapid.first().cloned().unwrap_or_default()

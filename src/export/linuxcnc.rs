@@ -147,7 +147,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
         }
         // ---- report ----
         entries.push(Pending::derived(
-            "nc.rapid_mm_per_min",
+            format!(
+                "nc.rapid_mm_per_min = {} (axis {})",
+                p.nc.rapid_mm_per_min, a.name
+            ),
             format!(
                 "{joint}MAX_VELOCITY = {0}, {axis}MAX_VELOCITY = {0}",
                 num(lim.max_vel_mm_s)
@@ -155,7 +158,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             "rapid traverse / 60 (mm/s)",
         ));
         entries.push(Pending::approximated(
-            format!("nc.accdec ({:?}, τ1 = {} s, τ2 = {} s)", p.nc.accdec.kind, p.nc.accdec.tc1_s, p.nc.accdec.tc2_s),
+            format!(
+                "nc.accdec = {:?}, τ1 = {} s, τ2 = {} s (axis {})",
+                p.nc.accdec.kind, p.nc.accdec.tc1_s, p.nc.accdec.tc2_s, a.name
+            ),
             format!("{joint}MAX_ACCELERATION = {0}, {axis}MAX_ACCELERATION = {0}", num(lim.max_acc_mm_s2)),
             &format!(
                 "{}. LinuxCNC plans trapezoidal velocity at MAX_ACCELERATION; the moving-average acc/dec filter (and a bell shape's jerk limit) is not representable. Not simulated: the trajectory is LinuxCNC's own planner",
@@ -222,10 +228,23 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
                 ("plus_to_minus", &b.plus_to_minus),
                 ("minus_to_plus", &b.minus_to_plus),
             ] {
-                entries.push(Pending::not_representable(
-                    format!("axes[{}].backlash.{name}.mode = {}", a.name, report::direction_text(d)),
-                    "LinuxCNC has one output behaviour for both directions; nearest: its ramped correction (the error is in the backlash amount row, which simulates the whole LinuxCNC correction)",
-                ));
+                let setting = format!(
+                    "axes[{}].backlash.{name}.mode = {}",
+                    a.name,
+                    report::direction_text(d)
+                );
+                entries.push(if d.mode == crate::comp::backlash::OutputMode::Lump {
+                    Pending::approximated(
+                        setting,
+                        "(the ramp above)",
+                        "LinuxCNC ramps the step instead of outputting it at once (the error is in the backlash amount row, which simulates the whole LinuxCNC correction)",
+                    )
+                } else {
+                    Pending::not_representable(
+                        setting,
+                        "LinuxCNC has one output behaviour for both directions, a ramp in time; nearest: that ramp (the error is in the backlash amount row, which simulates the whole LinuxCNC correction)",
+                    )
+                });
             }
         } else {
             entries.push(Pending::mapped(

@@ -251,27 +251,43 @@ fn ron_files(p: &Preset, programs: &[(String, String)]) -> Result<Rendered, Vec<
 
 impl Export {
     /// Writes the files and the report into `dir` (created if missing). Everything was
-    /// rendered and checked before, so a failure here is an I/O failure; each file is
-    /// replaced atomically.
+    /// rendered and checked before, so a failure here is an I/O failure.
     pub fn write(&self, dir: &Path) -> Result<Vec<PathBuf>, ExportError> {
-        std::fs::create_dir_all(dir).map_err(|source| ExportError::Io {
-            file: dir.display().to_string(),
-            source,
-        })?;
+        let io = |p: &Path| {
+            let file = p.display().to_string();
+            move |source| ExportError::Io { file, source }
+        };
+        let created = !dir.exists();
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
         let mut all: Vec<(String, String)> = self.files.clone();
         all.push(("mapping_report.md".into(), self.report.to_markdown()));
         all.push(("mapping_report.json".into(), self.report.to_json()));
-        let mut written = Vec::new();
-        for (name, text) in &all {
-            let path = dir.join(name);
-            crate::fsutil::write_atomic(&path, text.as_bytes()).map_err(|source| {
-                ExportError::Io {
-                    file: path.display().to_string(),
-                    source,
-                }
-            })?;
-            written.push(path);
+        // Every file is first written (and synced) into a staging folder inside `dir`;
+        // only when all of them are there are they renamed into place, so a failure
+        // (disk full, permissions) leaves the folder as it was.
+        let stage = dir.join(format!(".axisbench-export.{}", std::process::id()));
+        let staged = (|| -> Result<(), ExportError> {
+            std::fs::create_dir_all(&stage).map_err(io(&stage))?;
+            for (name, text) in &all {
+                let p = stage.join(name);
+                crate::fsutil::write_atomic(&p, text.as_bytes()).map_err(io(&p))?;
+            }
+            Ok(())
+        })();
+        if let Err(e) = staged {
+            let _ = std::fs::remove_dir_all(&stage);
+            if created {
+                let _ = std::fs::remove_dir(dir);
+            }
+            return Err(e);
         }
+        let mut written = Vec::new();
+        for (name, _) in &all {
+            let to = dir.join(name);
+            std::fs::rename(stage.join(name), &to).map_err(io(&to))?;
+            written.push(to);
+        }
+        let _ = std::fs::remove_dir_all(&stage);
         Ok(written)
     }
 }

@@ -660,14 +660,6 @@ pub(crate) fn thermal_setting(a: &crate::preset::AxisParams) -> String {
 /// Cross tables: the ones `keep` says the target carries are mapped by the caller; the rest
 /// are reported omitted, simulated with only the kept ones.
 pub(crate) fn cross_omitted(ctx: &Ctx, keep: &[bool], why: &str) -> Vec<Pending> {
-    let kept: Vec<CrossTable> = ctx
-        .preset
-        .cross
-        .iter()
-        .zip(keep)
-        .filter(|(_, k)| **k)
-        .map(|(t, _)| t.clone())
-        .collect();
     ctx.preset
         .cross
         .iter()
@@ -680,17 +672,21 @@ pub(crate) fn cross_omitted(ctx: &Ctx, keep: &[bool], why: &str) -> Vec<Pending>
                 .iter()
                 .position(|a| a.name == t.comp_axis)
                 .unwrap_or(0);
+            // The error this table's omission alone introduces: every other table as in
+            // the preset.
+            let others: Vec<CrossTable> = ctx
+                .preset
+                .cross
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, t)| t.clone())
+                .collect();
             Pending::not_representable(
                 cross_setting(i, t),
                 &format!("{why}; nearest: none (omitted)"),
             )
-            .sim(
-                vec![Change::Cross {
-                    tables: kept.clone(),
-                }],
-                vec![comp],
-                false,
-            )
+            .sim(vec![Change::Cross { tables: others }], vec![comp], false)
         })
         .collect()
 }

@@ -64,7 +64,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             num(a.servo.kp_per_s * 0.06)
         );
         entries.push(Pending::derived(
-            "nc.rapid_mm_per_min",
+            format!(
+                "nc.rapid_mm_per_min = {} (axis {})",
+                p.nc.rapid_mm_per_min, a.name
+            ),
             format!(
                 "MD32000 $MA_MAX_AX_VELO[{ax}] = {}",
                 num(lim.max_vel_mm_s * 60.0)
@@ -72,7 +75,10 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             "the rapid traverse, mm/min",
         ));
         entries.push(Pending::approximated(
-            format!("nc.accdec ({:?}, τ1 = {} s)", p.nc.accdec.kind, p.nc.accdec.tc1_s),
+            format!(
+                "nc.accdec = {:?}, τ1 = {} s, τ2 = {} s (axis {})",
+                p.nc.accdec.kind, p.nc.accdec.tc1_s, p.nc.accdec.tc2_s, a.name
+            ),
             format!("MD32300 $MA_MAX_AX_ACCEL[{ax}] = {} m/s²", num(lim.max_acc_mm_s2 * 1e-3)),
             &format!("{}; the NC plans with this acceleration (jerk limitation separately); the moving-average filter is not representable. Not simulated: the trajectory is the NC's own", lim.acc_basis),
         ));
@@ -231,6 +237,9 @@ pub(crate) fn render(ctx: &Ctx) -> Result<Rendered, Vec<Violation>> {
             continue;
         }
         let (pts, step, resid_um) = super::equidistant(&table.points, MAX_POINTS);
+        if pts.is_empty() {
+            continue; // an empty table is reported by the preset validation
+        }
         let mut s = format!(
             "; cross[{ci}]: {} = f({})\n",
             table.comp_axis, table.base_axis
