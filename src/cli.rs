@@ -34,6 +34,8 @@ macro_rules! say_raw {
     }};
 }
 
+mod diag;
+
 #[derive(Parser, Debug)]
 #[command(
     name = "axisbench",
@@ -136,6 +138,60 @@ pub enum Command {
         /// Measure the workbench's frame time instead (headless, plots full).
         #[arg(long)]
         frames: Option<usize>,
+        /// Time the diagnosis of a generated record of this many samples instead.
+        #[arg(long, value_name = "SAMPLES")]
+        diagnose: Option<usize>,
+    },
+    /// Sim-to-real diagnosis: replay a measured record through the preset, find where the
+    /// residual lies and which unmodelled effect explains it, and how far it shrinks.
+    Diagnose {
+        /// The nominal preset of the measured machine.
+        #[arg(long)]
+        preset: String,
+        /// Measured record (TRACE_FORMAT.md, or a foreign layout through --map or the
+        /// preset's default mapping). The candidates are fitted on it.
+        #[arg(long)]
+        trace: PathBuf,
+        /// Column mapping for a foreign layout, e.g. "t[s]=t_s, x.cmd[m]=qg_m, x.pos[m]=qm_m".
+        #[arg(long)]
+        map: Option<String>,
+        /// A second record for held-out scoring. Without it, the end of --trace is held out.
+        #[arg(long)]
+        validate: Option<PathBuf>,
+        /// Fraction of --trace held out when there is no --validate record.
+        #[arg(long, default_value_t = 0.3)]
+        holdout: f64,
+        /// Axis to diagnose (default: the first preset axis in the record).
+        #[arg(long)]
+        axis: Option<String>,
+        /// Try only these candidates (comma-separated effect names).
+        #[arg(long, value_delimiter = ',')]
+        effects: Vec<String>,
+        /// Write the report as JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Write the preset with the selected effects added here.
+        #[arg(long)]
+        apply: Option<PathBuf>,
+        /// Write the held-out residuals (before/after, with regimes) as CSV here.
+        #[arg(long)]
+        residuals: Option<PathBuf>,
+    },
+    /// Blind check of the diagnosis: generated cases with hidden effects.
+    DiagnoseEval {
+        #[arg(long, default_value_t = 70)]
+        cases: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Seconds of motion per case.
+        #[arg(long, default_value_t = 24.0)]
+        duration: f64,
+        /// Print one line per case.
+        #[arg(long)]
+        verbose: bool,
+        /// Run only these case numbers (comma-separated), e.g. to look at one closely.
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<usize>,
     },
 }
 
@@ -253,7 +309,40 @@ pub fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
+        Some(Command::Bench {
+            diagnose: Some(n), ..
+        }) => diag::bench(n),
         Some(Command::Bench { steps, .. }) => bench(steps),
+        Some(Command::Diagnose {
+            preset,
+            trace,
+            map,
+            validate,
+            holdout,
+            axis,
+            effects,
+            report,
+            apply,
+            residuals,
+        }) => diag::diagnose(diag::Args {
+            residuals,
+            preset,
+            trace,
+            map,
+            validate,
+            holdout,
+            axis,
+            effects,
+            report,
+            apply,
+        }),
+        Some(Command::DiagnoseEval {
+            cases,
+            seed,
+            duration,
+            verbose,
+            only,
+        }) => diag::eval(cases, seed, duration, verbose, only),
     }
 }
 

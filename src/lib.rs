@@ -10,6 +10,7 @@
 pub mod analysis;
 pub mod bench;
 pub mod comp;
+pub mod diagnose;
 pub mod export;
 pub mod fsutil;
 pub mod machine;

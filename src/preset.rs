@@ -102,6 +102,44 @@ pub struct Preset {
     #[serde(default)]
     pub cross: Vec<crate::comp::cross::CrossTable>,
     pub scenario: Scenario,
+    /// How measured records of this machine are read for the sim-to-real diagnosis.
+    #[serde(default, skip_serializing_if = "DiagnoseSettings::is_default")]
+    pub diagnose: DiagnoseSettings,
+}
+
+/// What a measured record of this machine looks like, so `axisbench diagnose` can read it
+/// without a `--map` every time.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct DiagnoseSettings {
+    /// Default column mapping for foreign layouts (TRACE_FORMAT.md), e.g.
+    /// `"t[s]=t_s, x.cmd[m]=qg_m, x.pos[m]=qm_m, x.force[N]=force_N"`.
+    #[serde(default)]
+    pub mapping: Option<String>,
+    /// Which sensor the record's `pos` column comes from.
+    #[serde(default)]
+    pub pos_source: PosSource,
+}
+
+impl DiagnoseSettings {
+    pub fn is_default(&self) -> bool {
+        *self == DiagnoseSettings::default()
+    }
+}
+
+/// The sensor behind a trace's `pos` column. It decides which model signal a measured
+/// position is compared with: backlash, lead error and thermal growth are invisible to a
+/// motor encoder and visible to a linear scale.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PosSource {
+    /// The true table position, as axisbench's own traces record it.
+    #[default]
+    Load,
+    /// The motor encoder converted to load travel (quantized at the motor counts).
+    MotorEncoder,
+    /// The linear scale on the table (quantized at the scale resolution).
+    Scale,
 }
 
 /// Control periods. T1 ≥ T2 ≥ T3, with integer ratios (SPEC §1).

@@ -3,6 +3,7 @@
 //! goes through `Preset::with_override` (the same validation as files and the CLI) and
 //! `Machine::apply_params`, so it takes effect from the next control period.
 
+mod diagnose;
 mod edit;
 mod live;
 mod plots;
@@ -65,6 +66,7 @@ pub enum Tab {
     Circle,
     Sag,
     Compare,
+    Diagnose,
 }
 
 /// Result of an A/B run.
@@ -118,6 +120,7 @@ pub struct Workbench {
     /// Outcome of the last plot PNG export, set by the screenshot callback.
     png_msg: std::sync::Arc<std::sync::Mutex<Option<String>>>,
     plot_rects: BTreeMap<String, egui::Rect>,
+    pub diag: diagnose::DiagState,
 }
 
 impl Workbench {
@@ -174,6 +177,7 @@ impl Workbench {
             last_session: String::new(),
             png_msg: Default::default(),
             plot_rects: BTreeMap::new(),
+            diag: diagnose::DiagState::new(),
         })
     }
 
@@ -497,6 +501,7 @@ impl Workbench {
                     (Tab::Circle, "Circle (XY)"),
                     (Tab::Sag, "Sag profile"),
                     (Tab::Compare, "A/B compare"),
+                    (Tab::Diagnose, "Diagnose"),
                 ] {
                     ui.selectable_value(&mut self.tab, tab, label);
                 }
@@ -507,6 +512,7 @@ impl Workbench {
                 Tab::Circle => plots::circle_ui(self, ui),
                 Tab::Sag => plots::sag_ui(self, ui),
                 Tab::Compare => plots::compare_ui(self, ui),
+                Tab::Diagnose => diagnose::diagnose_ui(self, ui),
             }
         });
         self.handle_screenshot(ui.ctx());

@@ -273,6 +273,48 @@ fn record_and_reopen_a_trace() {
 }
 
 #[test]
+fn diagnose_view_runs_and_applies_the_fitted_effect() {
+    let wb = match Workbench::new_embedded("emps.ron") {
+        Ok(wb) => wb,
+        Err(e) => panic!("emps workbench: {e:#}"),
+    };
+    let mut h = harness(wb);
+    h.run();
+    h.get_by_label("Diagnose").click();
+    h.run();
+    assert_eq!(h.state().tab, Tab::Diagnose);
+    let rec = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/real/emps/emps_train_DATA_EMPS.csv");
+    assert!(rec.exists(), "real data missing: {}", rec.display());
+    h.state_mut().diag.trace_path = rec.display().to_string();
+    h.run();
+    h.get_by_label("Run diagnosis").click();
+    // The progress bar repaints while the job runs, so step rather than settle.
+    h.step();
+    assert!(h.state().diag.job.is_some(), "the job started");
+    h.state_mut().wait_diagnosis();
+    h.run();
+    {
+        let wb = h.state();
+        assert!(wb.diag.error.is_none(), "{:?}", wb.diag.error);
+        let rep = wb.diag.report.as_ref().expect("a report");
+        assert_eq!(rep.verdict, "coulomb_friction");
+        assert_eq!(wb.preset.axes[0].friction.coulomb_n, 0.0, "not applied yet");
+    }
+    h.get_by_label("Apply to model").click();
+    h.run();
+    let wb = h.state();
+    let fc = wb.preset.axes[0].friction.coulomb_n;
+    assert!((fc - 20.39).abs() < 3.0, "applied Coulomb force {fc} N");
+    assert_eq!(
+        wb.live.lock().machine.preset.axes[0].friction.coulomb_n,
+        fc,
+        "the running machine took it"
+    );
+    assert!(wb.dirty(), "the fitted preset is an unsaved edit");
+}
+
+#[test]
 fn export_buttons_write_the_target_files_and_the_report() {
     let dir = std::env::temp_dir().join(format!("axisbench-gui-export-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);

@@ -147,5 +147,70 @@ fn export_and_import_through_the_binary() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+
+fn diagnose_runs_the_documented_emps_command() {
+    let dir = std::env::temp_dir().join(format!("axb-diag-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("tmp");
+    let report = dir.join("emps.json");
+    let out = bin()
+        .args([
+            "diagnose",
+            "--preset",
+            "presets/emps.ron",
+            "--trace",
+            "../shared/data/real/emps/emps_train_DATA_EMPS.csv",
+            "--validate",
+            "../shared/data/real/emps/emps_test_DATA_EMPS_PULSES.csv",
+            "--report",
+        ])
+        .arg(&report)
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("VERDICT: coulomb_friction"), "{stdout}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(json["verdict"], "coulomb_friction");
+    assert_eq!(json["selected"][0], "coulomb_friction");
+    let first = &json["ranking"][0];
+    for key in [
+        "effect",
+        "params",
+        "fit_rms_before",
+        "fit_rms_after",
+        "holdout_rms_before",
+        "holdout_rms_after",
+        "shrink",
+    ] {
+        assert!(!first[key].is_null(), "ranking entry lacks {key}: {first}");
+    }
+    for key in ["name", "share", "rms", "peak"] {
+        assert!(!json["regimes"][0][key].is_null(), "regime lacks {key}");
+    }
+    for key in ["t_start", "t_end", "peak"] {
+        assert!(!json["windows"][0][key].is_null(), "window lacks {key}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn diagnose_names_a_missing_column() {
+    let dir = std::env::temp_dir().join(format!("axb-diag-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("tmp");
+    let f = dir.join("bad.csv");
+    std::fs::write(&f, "t_s,qg_m,force_N\n0,0,0\n0.001,0,0\n").expect("write");
+    let out = bin()
+        .args(["diagnose", "--preset", "presets/emps.ron", "--trace"])
+        .arg(&f)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("qm_m"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -3,6 +3,7 @@
 mod cli;
 mod common;
 mod comp;
+mod diagnose;
 mod export;
 mod linuxcnc;
 mod nc;

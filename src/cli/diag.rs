@@ -1,0 +1,273 @@
+//! `axisbench diagnose`, `diagnose-eval` and `bench --diagnose`.
+
+use anyhow::{Context, Result, bail};
+use axisbench::diagnose::{self, Effect, Options, Progress, Report, eval, replay::Record};
+use std::io::Write as _;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+pub struct Args {
+    pub preset: String,
+    pub trace: PathBuf,
+    pub map: Option<String>,
+    pub validate: Option<PathBuf>,
+    pub holdout: f64,
+    pub axis: Option<String>,
+    pub effects: Vec<String>,
+    pub report: Option<PathBuf>,
+    pub apply: Option<PathBuf>,
+    pub residuals: Option<PathBuf>,
+}
+
+/// A progress line on stderr, rewritten in place (stdout stays clean for the summary).
+fn progress_line(frac: f64, what: &str) {
+    let mut e = std::io::stderr();
+    let _ = write!(e, "\r[{:>3.0}%] {:<40}", frac * 100.0, what);
+    if frac >= 1.0 {
+        let _ = writeln!(e);
+    }
+    let _ = e.flush();
+}
+
+pub fn diagnose(a: Args) -> Result<()> {
+    let lp = super::load_with_sets(&a.preset, &[])?;
+    let preset = &lp.preset;
+    let mut only = Vec::new();
+    for name in &a.effects {
+        match Effect::from_name(name.trim()) {
+            Some(e) => only.push(e),
+            None => bail!(
+                "--effects: unknown effect '{name}'; known: {}",
+                Effect::ALL.map(|e| e.name()).join(", ")
+            ),
+        }
+    }
+    let t3 = preset.timing.t3_s;
+    let read = |p: &PathBuf| -> Result<(Record, String)> {
+        let file = p.display().to_string();
+        let tr = diagnose::read_record(p, preset, a.map.as_deref())?;
+        let axis = diagnose::pick_axis(&tr, &file, preset, a.axis.as_deref())?;
+        let base = diagnose::base_axis_of(preset, &axis)
+            .filter(|b| tr.signal(&format!("{b}.pos")).is_some());
+        Ok((
+            Record::from_trace(&tr, &file, &axis, base.as_deref(), t3)?,
+            file,
+        ))
+    };
+    let (main, main_file) = read(&a.trace)?;
+    let validate = a.validate.as_ref().map(read).transpose()?;
+    let opts = Options {
+        axis: a.axis.clone(),
+        holdout: a.holdout,
+        only,
+        max_effects: 3,
+    };
+    let cancel = AtomicBool::new(false);
+    let report_fn = progress_line;
+    let progress = Progress {
+        report: &report_fn,
+        cancel: &cancel,
+    };
+    let t0 = Instant::now();
+    let rep = diagnose::diagnose(
+        preset,
+        &main,
+        validate.as_ref().map(|v| &v.0),
+        &opts,
+        &progress,
+    )?;
+    let secs = t0.elapsed().as_secs_f64();
+    print_summary(
+        &rep,
+        &main_file,
+        validate.as_ref().map(|v| v.1.as_str()),
+        secs,
+    );
+    if let Some(path) = &a.report {
+        let json = serde_json::to_string_pretty(&rep)?;
+        axisbench::fsutil::write_atomic(path, json.as_bytes())
+            .with_context(|| format!("writing the report {}", path.display()))?;
+        say!("report: {}", path.display());
+    }
+    if let (Some(path), Some(series)) = (&a.residuals, &rep.series) {
+        let mut w = csv::Writer::from_writer(Vec::new());
+        w.write_record(["t[s]", "pos[mm]", "before[um]", "after[um]", "regime"])?;
+        for i in 0..series.t_s.len() {
+            w.write_record([
+                format!("{:.6}", series.t_s[i]),
+                format!("{:.6}", series.pos_mm[i]),
+                format!("{:.4}", series.before_um[i]),
+                format!("{:.4}", series.after_um[i]),
+                series.regimes[i].name().to_owned(),
+            ])?;
+        }
+        let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+        axisbench::fsutil::write_atomic(path, &bytes)
+            .with_context(|| format!("writing the residuals {}", path.display()))?;
+        say!("residuals: {}", path.display());
+    }
+    if let Some(path) = &a.apply {
+        let fitted = rep
+            .fitted
+            .as_ref()
+            .context("the diagnosis produced no fitted preset")?;
+        let text = fitted.to_ron()?;
+        axisbench::fsutil::write_atomic(path, text.as_bytes())
+            .with_context(|| format!("writing the fitted preset {}", path.display()))?;
+        say!("fitted preset: {}", path.display());
+    }
+    Ok(())
+}
+
+fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
+    say!(
+        "diagnosis of axis {} against preset '{}': fit on {} ({} samples), held out: {} ({} samples); {:.2} s",
+        r.axis,
+        r.preset,
+        main,
+        r.samples_fit,
+        validate.unwrap_or(&r.holdout_source),
+        r.samples_holdout,
+        secs
+    );
+    say!("time offset record vs model: {:+.3} ms", r.time_offset_ms);
+    say!("\nWHERE (held-out position residual of the nominal model, um):");
+    say!(
+        "  {:<22} {:>7} {:>9} {:>9}",
+        "regime",
+        "share",
+        "rms",
+        "peak"
+    );
+    for g in &r.regimes {
+        say!(
+            "  {:<22} {:>6.1}% {:>9.3} {:>9.3}",
+            g.name,
+            g.share * 100.0,
+            g.rms,
+            g.peak
+        );
+    }
+    if let Some(w) = r.windows_before.first() {
+        say!(
+            "  worst window {:.3}-{:.3} s, peak {:.3} um",
+            w.t_start,
+            w.t_end,
+            w.peak
+        );
+    }
+    say!("\nWHICH (ranked by held-out shrink minus complexity penalty):");
+    for (i, e) in r.ranking.iter().enumerate() {
+        let params: Vec<String> = e
+            .params
+            .iter()
+            .map(|(k, v)| match e.params_std.get(k) {
+                Some(s) if s.is_finite() && *s > 0.0 => format!("{k}={v:.4} +-{s:.2}"),
+                _ => format!("{k}={v:.4}"),
+            })
+            .collect();
+        say!(
+            "  {:>2}. {:<21} shrink {:>6.1}%{} {}",
+            i + 1,
+            e.effect,
+            e.shrink * 100.0,
+            if e.significant { "*" } else { " " },
+            params.join(" ")
+        );
+    }
+    say!("  (* significant)");
+    say!("\nVERDICT: {}", r.verdict);
+    if r.verdict == "none" {
+        say!("  no significant unmodelled effect");
+    } else {
+        say!("  added greedily: {}", r.selected.join(" + "));
+    }
+    say!("\nHOW FAR (held out, position residual, um):");
+    say!(
+        "  overall rms {:.3} -> {:.3} ({:+.1}%), peak {:.3} -> {:.3}",
+        r.overall.rms_before,
+        r.overall.rms_after,
+        -r.overall.shrink * 100.0,
+        r.overall.peak_before,
+        r.overall.peak_after
+    );
+    if let (Some(b), Some(a)) = (r.force_rms_before, r.force_rms_after) {
+        say!(
+            "  force residual rms {b:.3} -> {a:.3} N ({:+.1}%)",
+            -(1.0 - a / b) * 100.0
+        );
+    }
+    for g in &r.per_regime {
+        say!(
+            "  {:<22} rms {:>9.3} -> {:>9.3}  peak {:>9.3} -> {:>9.3}",
+            g.name,
+            g.rms_before,
+            g.rms_after,
+            g.peak_before,
+            g.peak_after
+        );
+    }
+    say!("  remaining gap, worst windows:");
+    for w in r.windows.iter().take(5) {
+        say!(
+            "    {:>9.3}-{:<9.3} s  peak {:.3} um",
+            w.t_start,
+            w.t_end,
+            w.peak
+        );
+    }
+}
+
+pub fn eval(
+    cases: usize,
+    seed: u64,
+    duration_s: f64,
+    verbose: bool,
+    only: Vec<usize>,
+) -> Result<()> {
+    let cfg = eval::EvalConfig {
+        cases,
+        seed,
+        duration_s,
+        only,
+    };
+    let t0 = Instant::now();
+    let line = |s: &str| {
+        if verbose {
+            say!("{s}");
+        }
+    };
+    let res = eval::run(&cfg, &progress_line, &line)?;
+    say!("{}", res.summary());
+    say!("elapsed {:.1} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+pub fn bench(samples: usize) -> Result<()> {
+    let case = eval::bench_case(samples, 7)?;
+    let cancel = AtomicBool::new(false);
+    let quiet = |_: f64, _: &str| {};
+    let progress = Progress {
+        report: &quiet,
+        cancel: &cancel,
+    };
+    let t0 = Instant::now();
+    let rep = diagnose::diagnose(
+        &case.nominal,
+        &case.record,
+        None,
+        &Options::default(),
+        &progress,
+    )?;
+    let secs = t0.elapsed().as_secs_f64();
+    say!(
+        "diagnose samples={} candidates={} hidden={} verdict={} seconds={:.2}",
+        case.record.len(),
+        rep.ranking.len(),
+        case.hidden.join("+"),
+        rep.verdict,
+        secs
+    );
+    Ok(())
+}

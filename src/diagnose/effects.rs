@@ -1,0 +1,221 @@
+//! The candidate effects: the plant effects of SPEC §7 a nominal preset may leave out, each
+//! with named parameters (units in the key), bounds, and how it changes the model.
+
+use super::replay::Model;
+use crate::preset::Coupling;
+use serde::Serialize;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Effect {
+    CoulombFriction,
+    StribeckFriction,
+    ViscousFriction,
+    StrokeFriction,
+    Backlash,
+    BacklashAsymmetry,
+    ConstantForce,
+    Compliance,
+    ThermalGrowth,
+    BeamSag,
+    LeadError,
+    Quantization,
+    CommandDelay,
+    ExternalDisturbance,
+}
+
+/// One fitted parameter: report key (with unit), bounds, and a typical magnitude that
+/// seeds the fit.
+#[derive(Debug, Clone, Copy)]
+pub struct ParamDef {
+    pub key: &'static str,
+    pub lo: f64,
+    pub hi: f64,
+    pub init: f64,
+}
+
+/// A struct literal, so that the tables below are promoted to statics.
+macro_rules! p {
+    ($key:expr, $lo:expr, $hi:expr, $init:expr) => {
+        ParamDef {
+            key: $key,
+            lo: $lo,
+            hi: $hi,
+            init: $init,
+        }
+    };
+}
+
+impl Effect {
+    pub const ALL: [Effect; 14] = [
+        Effect::CoulombFriction,
+        Effect::StribeckFriction,
+        Effect::ViscousFriction,
+        Effect::StrokeFriction,
+        Effect::Backlash,
+        Effect::BacklashAsymmetry,
+        Effect::ConstantForce,
+        Effect::Compliance,
+        Effect::ThermalGrowth,
+        Effect::BeamSag,
+        Effect::LeadError,
+        Effect::Quantization,
+        Effect::CommandDelay,
+        Effect::ExternalDisturbance,
+    ];
+
+    /// The name used in reports and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Effect::CoulombFriction => "coulomb_friction",
+            Effect::StribeckFriction => "stribeck_friction",
+            Effect::ViscousFriction => "viscous_friction",
+            Effect::StrokeFriction => "stroke_friction",
+            Effect::Backlash => "backlash",
+            Effect::BacklashAsymmetry => "backlash_asymmetry",
+            Effect::ConstantForce => "constant_force",
+            Effect::Compliance => "compliance",
+            Effect::ThermalGrowth => "thermal_growth",
+            Effect::BeamSag => "beam_sag",
+            Effect::LeadError => "lead_error",
+            Effect::Quantization => "quantization",
+            Effect::CommandDelay => "command_delay",
+            Effect::ExternalDisturbance => "external_disturbance",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Effect> {
+        Effect::ALL.into_iter().find(|e| e.name() == s)
+    }
+
+    /// The fitted parameters. Signed parameters (offset force, viscous correction, lead
+    /// error terms) have symmetric bounds.
+    pub fn params(self) -> &'static [ParamDef] {
+        match self {
+            Effect::CoulombFriction => &[p!("force_n", 0.0, 5000.0, 10.0)],
+            Effect::StribeckFriction => &[
+                p!("breakaway_excess_n", 0.0, 5000.0, 20.0),
+                p!("velocity_mm_per_s", 0.05, 50.0, 2.0),
+            ],
+            Effect::ViscousFriction => &[p!("viscous_n_s_per_m", -1.0e5, 1.0e5, 100.0)],
+            Effect::StrokeFriction => &[
+                p!("rise_ratio", 0.0, 5.0, 0.5),
+                p!("pitch_mm", 0.5, 200.0, 10.0),
+            ],
+            Effect::Backlash => &[p!("width_um", 0.0, 500.0, 5.0)],
+            Effect::BacklashAsymmetry => &[
+                p!("width_um", 0.0, 500.0, 5.0),
+                p!("preload_force_n", -5000.0, 5000.0, 50.0),
+            ],
+            Effect::ConstantForce => &[p!("force_n", -1.0e4, 1.0e4, 10.0)],
+            Effect::Compliance => &[
+                p!("stiffness_n_per_um", 1.0, 2000.0, 100.0),
+                p!("damping_n_s_per_m", 10.0, 1.0e5, 2000.0),
+            ],
+            Effect::ThermalGrowth => &[
+                p!("heat_w_s_per_m", 0.0, 1.0e5, 100.0),
+                p!("time_constant_s", 10.0, 36000.0, 1200.0),
+            ],
+            Effect::BeamSag => &[p!("post_weight_n", -1.0e5, 1.0e5, 1000.0)],
+            Effect::LeadError => &[
+                p!("sin_um", -200.0, 200.0, 1.0),
+                p!("cos_um", -200.0, 200.0, 1.0),
+                p!("cumulative_um_per_m", -500.0, 500.0, 1.0),
+            ],
+            Effect::Quantization => &[p!("resolution_um", 1e-4, 100.0, 1.0)],
+            Effect::CommandDelay => &[p!("delay_ms", -50.0, 50.0, 1.0)],
+            Effect::ExternalDisturbance => &[],
+        }
+    }
+
+    /// Adds the effect with parameters `th` to `m`. Effects the nominal already has are
+    /// corrected rather than replaced (Coulomb adds to the nominal Coulomb force, viscous to
+    /// the nominal coefficient), so a mis-set parameter shows as that effect.
+    pub fn apply(self, th: &[f64], m: &mut Model) {
+        let a = &mut m.axis;
+        match self {
+            Effect::CoulombFriction => {
+                a.friction.enabled = true;
+                a.friction.coulomb_n += th[0];
+                if a.friction.stribeck.enabled {
+                    a.friction.stribeck.static_n += th[0];
+                }
+            }
+            Effect::StribeckFriction => {
+                a.friction.enabled = true;
+                let s = &mut a.friction.stribeck;
+                s.enabled = true;
+                s.static_n = a.friction.coulomb_n + th[0];
+                s.velocity_mm_per_s = th[1];
+            }
+            Effect::ViscousFriction => {
+                a.friction.enabled = true;
+                a.friction.viscous_n_s_per_m = (a.friction.viscous_n_s_per_m + th[0]).max(0.0);
+            }
+            Effect::StrokeFriction => {
+                let s = &mut a.friction.stroke;
+                s.enabled = true;
+                s.rise_ratio = th[0];
+                s.pitch_mm = th[1];
+            }
+            Effect::Backlash => {
+                a.lost_motion.enabled = true;
+                a.lost_motion.width_um = th[0].max(1e-6);
+            }
+            Effect::BacklashAsymmetry => {
+                a.lost_motion.enabled = true;
+                a.lost_motion.width_um = th[0].max(1e-6);
+                a.gravity.enabled = true;
+                a.gravity.offset_n += th[1];
+            }
+            Effect::ConstantForce => {
+                a.gravity.enabled = true;
+                a.gravity.offset_n += th[0];
+            }
+            Effect::Compliance => {
+                a.drive.coupling = Coupling::TwoMass {
+                    stiffness_n_per_um: th[0],
+                    damping_n_s_per_m: th[1],
+                };
+            }
+            Effect::ThermalGrowth => {
+                let t = &mut a.screw_thermal;
+                t.enabled = true;
+                t.friction_heat_share = 0.0;
+                t.motion_heat_w_s_per_m = th[0];
+                // The heat loss stays as the preset has it; the time constant sets the
+                // heat capacity, so heat and time constant are independent parameters.
+                t.heat_capacity_j_per_k = t.loss_w_per_k * th[1].max(1.0);
+                t.initial_c = t.ambient_c;
+                t.reference_c = t.ambient_c;
+            }
+            Effect::BeamSag => {}
+            Effect::LeadError => {
+                let l = &mut a.lead_error;
+                l.enabled = true;
+                l.period_mm = a.drive.lead_mm;
+                l.amplitude_um = th[0].hypot(th[1]);
+                l.phase_deg = th[1].atan2(th[0]).to_degrees();
+                l.cumulative_um_per_m = th[2];
+                l.table.clear();
+            }
+            Effect::Quantization => {
+                // The sensor behind `pos` (and the feedback, if it is the same device).
+                let e = &mut a.encoder;
+                match m.pos_source {
+                    crate::preset::PosSource::MotorEncoder => {
+                        e.quantize_motor = true;
+                        let counts = (a.drive.lead_mm * 1e3 / th[0]).round().max(1.0);
+                        e.motor_counts_per_rev = counts as u32;
+                    }
+                    _ => {
+                        e.quantize_scale = true;
+                        e.scale_resolution_um = th[0];
+                    }
+                }
+            }
+            Effect::CommandDelay => m.delay_s += th[0] * 1e-3,
+            Effect::ExternalDisturbance => {}
+        }
+    }
+}

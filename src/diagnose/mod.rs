@@ -1,0 +1,295 @@
+//! Sim-to-real diagnosis (SPEC §8): replay a measured record through the nominal model,
+//! find where the residual lies, fit each candidate unmodelled effect, rank them by how much
+//! they shrink the residual on data not used for fitting, and add effects greedily.
+//!
+//! Everything here drives the same plant and amplifier code as the machine; the candidates
+//! change only preset parameters (plus command delay and external force, which sit outside
+//! the plant), so a fitted effect can be written back into the preset as it is.
+
+pub mod effects;
+pub mod eval;
+pub mod fit;
+pub mod regimes;
+pub mod replay;
+
+use crate::preset::{Preset, PresetError};
+use crate::trace::{Mapping, Trace, TraceError};
+pub use effects::Effect;
+use regimes::{BinStat, Regime, RegimeStat, Window};
+use replay::{Model, Record};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    #[error("{file}: {reason}")]
+    Record { file: String, reason: String },
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+    #[error(transparent)]
+    Preset(#[from] PresetError),
+    #[error("{0}")]
+    Input(String),
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// Progress reports (fraction 0..1 and what is running) and the cancel flag, shared by the
+/// CLI's progress line and the GUI's progress bar.
+pub struct Progress<'a> {
+    pub report: &'a (dyn Fn(f64, &str) + Sync),
+    pub cancel: &'a AtomicBool,
+}
+
+impl Progress<'_> {
+    fn check(&self) -> Result<(), DiagnoseError> {
+        if self.cancel.load(Ordering::Relaxed) {
+            Err(DiagnoseError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// Options of one diagnosis.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Axis to diagnose; None: the first preset axis the record has.
+    pub axis: Option<String>,
+    /// Fraction at the end of the record held out for scoring when no validation record is
+    /// given.
+    pub holdout: f64,
+    /// Effects to try; empty: all.
+    pub only: Vec<Effect>,
+    /// At most this many effects are added greedily.
+    pub max_effects: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            axis: None,
+            holdout: 0.3,
+            only: vec![],
+            max_effects: 3,
+        }
+    }
+}
+
+/// Reads a record for `preset`: the `--map` text wins, then the preset's default mapping,
+/// then the record's own TRACE_FORMAT header.
+pub fn read_record(
+    path: &std::path::Path,
+    preset: &Preset,
+    map: Option<&str>,
+) -> Result<Trace, DiagnoseError> {
+    let text = map.or(preset.diagnose.mapping.as_deref());
+    let mapping = text.map(Mapping::parse).transpose()?;
+    // A preset's default mapping only applies to records in that foreign layout; a record
+    // already in TRACE_FORMAT is read as it is.
+    match Trace::read_csv(path, mapping.as_ref()) {
+        Ok(t) => Ok(t),
+        Err(e) if map.is_none() && mapping.is_some() => match Trace::read_csv(path, None) {
+            Ok(t) => Ok(t),
+            Err(_) => Err(e.into()),
+        },
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Picks the axis to diagnose and checks that the record's axes belong to the preset.
+pub fn pick_axis(
+    trace: &Trace,
+    file: &str,
+    preset: &Preset,
+    want: Option<&str>,
+) -> Result<String, DiagnoseError> {
+    let have = trace.axes();
+    let names: Vec<&str> = preset.axes.iter().map(|a| a.name.as_str()).collect();
+    let foreign: Vec<&String> = have
+        .iter()
+        .filter(|a| !names.contains(&a.as_str()))
+        .collect();
+    if !foreign.is_empty() {
+        return Err(DiagnoseError::Record {
+            file: file.to_owned(),
+            reason: format!(
+                "axes {:?} are not in preset '{}' (its axes: {:?})",
+                foreign, preset.name, names
+            ),
+        });
+    }
+    if let Some(w) = want {
+        if !have.iter().any(|a| a == w) {
+            return Err(DiagnoseError::Record {
+                file: file.to_owned(),
+                reason: format!("no cmd/pos columns for axis '{w}' (the record has {have:?})"),
+            });
+        }
+        return Ok(w.to_owned());
+    }
+    names
+        .iter()
+        .find(|n| have.iter().any(|a| a == *n))
+        .map(|s| (*s).to_owned())
+        .ok_or_else(|| DiagnoseError::Record {
+            file: file.to_owned(),
+            reason: format!(
+                "no axis with both cmd and pos columns (need e.g. '{}.cmd[mm]' and '{}.pos[mm]')",
+                names.first().unwrap_or(&"x"),
+                names.first().unwrap_or(&"x")
+            ),
+        })
+}
+
+/// The base axis of `axis` (for base-position bins and beam sag): the X axis of a crossbeam
+/// post whose Z is `axis`, or the base axis of a cross table compensating it.
+pub fn base_axis_of(preset: &Preset, axis: &str) -> Option<String> {
+    if let Some(t) = preset.cross.iter().find(|t| t.comp_axis == axis) {
+        return Some(t.base_axis.clone());
+    }
+    preset
+        .crossbeam
+        .posts
+        .iter()
+        .find(|p| p.z_axis == axis)
+        .map(|p| p.x_axis.clone())
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct RankEntry {
+    pub effect: String,
+    pub params: BTreeMap<String, f64>,
+    /// One standard deviation of each parameter (from the fit's Jacobian, corrected for
+    /// the residual's correlation time).
+    pub params_std: BTreeMap<String, f64>,
+    /// Position residual RMS in µm.
+    pub fit_rms_before: f64,
+    pub fit_rms_after: f64,
+    pub holdout_rms_before: f64,
+    pub holdout_rms_after: f64,
+    /// Held-out shrink of the combined (position and force) residual, 0..1.
+    pub shrink: f64,
+    /// Held-out shrink of the position residual alone.
+    pub shrink_pos: f64,
+    /// Held-out shrink of the force residual alone (when force was recorded).
+    pub shrink_force: Option<f64>,
+    /// Shrink minus the complexity penalty: the ranking key.
+    pub score: f64,
+    pub significant: bool,
+    pub note: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Figures {
+    pub rms_before: f64,
+    pub rms_after: f64,
+    pub peak_before: f64,
+    pub peak_after: f64,
+    pub shrink: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct RegimeChange {
+    pub name: String,
+    pub rms_before: f64,
+    pub rms_after: f64,
+    pub peak_before: f64,
+    pub peak_after: f64,
+    pub shrink: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub preset: String,
+    pub axis: String,
+    pub base_axis: Option<String>,
+    pub t3_s: f64,
+    pub resampled: bool,
+    pub samples_fit: usize,
+    pub samples_holdout: usize,
+    pub holdout_source: String,
+    /// Constant time offset between the record and the model (positive: the machine lags
+    /// the model), from a least-squares fit of the residual to the velocity.
+    pub time_offset_ms: f64,
+    /// Held-out samples left out of the candidates' scores as anomalous (residual far
+    /// beyond anything in the fitting data).
+    pub holdout_masked: usize,
+    /// Units of the figures: position residuals in µm, force residuals in N.
+    pub units: String,
+    pub verdict: String,
+    pub selected: Vec<String>,
+    /// Held-out shrink of the combined residual with all selected effects, 0..1.
+    pub shrink: f64,
+    pub ranking: Vec<RankEntry>,
+    /// Held-out position residual of the nominal model, per regime.
+    pub regimes: Vec<RegimeStat>,
+    pub position_bins: Vec<BinStat>,
+    pub base_bins: Vec<BinStat>,
+    pub time_bins: Vec<BinStat>,
+    /// Worst held-out windows that remain after the selected effects.
+    pub windows: Vec<Window>,
+    /// Worst held-out windows of the nominal model.
+    pub windows_before: Vec<Window>,
+    pub force_rms_before: Option<f64>,
+    pub force_rms_after: Option<f64>,
+    pub overall: Figures,
+    pub per_regime: Vec<RegimeChange>,
+    /// The fitted preset with the selected effects (for "apply to model").
+    #[serde(skip)]
+    pub fitted: Option<Preset>,
+    /// Residuals for the GUI: held-out position residual (µm) before and after, regime
+    /// labels, times and positions.
+    #[serde(skip)]
+    pub series: Option<Series>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Series {
+    pub t_s: Vec<f64>,
+    pub pos_mm: Vec<f64>,
+    pub before_um: Vec<f64>,
+    pub after_um: Vec<f64>,
+    pub regimes: Vec<Regime>,
+}
+
+/// Runs the whole diagnosis of `main` (fit) and `validate` (held out), or of `main` alone
+/// with its last `opts.holdout` held out.
+pub fn diagnose(
+    preset: &Preset,
+    main: &Record,
+    validate: Option<&Record>,
+    opts: &Options,
+    progress: &Progress,
+) -> Result<Report, DiagnoseError> {
+    let axis_params = preset
+        .axes
+        .iter()
+        .find(|a| a.name == main.axis)
+        .ok_or_else(|| DiagnoseError::Input(format!("axis '{}' not in preset", main.axis)))?
+        .clone();
+    if !(opts.holdout > 0.0 && opts.holdout < 0.9) && validate.is_none() {
+        return Err(DiagnoseError::Input(format!(
+            "--holdout {} must lie in (0, 0.9): it is the fraction of the record kept for scoring",
+            opts.holdout
+        )));
+    }
+    let nominal = Model {
+        axis: axis_params,
+        t3_s: preset.timing.t3_s,
+        pos_source: preset.diagnose.pos_source,
+        delay_s: 0.0,
+        events: vec![],
+    };
+    let base_axis = base_axis_of(preset, &main.axis);
+    let effects: Vec<Effect> = if opts.only.is_empty() {
+        Effect::ALL.to_vec()
+    } else {
+        opts.only.clone()
+    };
+    let split = fit::Split::new(main, validate, opts.holdout)?;
+    let engine = fit::Engine::new(&nominal, split, progress)?;
+    let outcome = engine.run(&effects, opts.max_effects)?;
+    Ok(fit::build_report(preset, &engine, outcome, base_axis))
+}
