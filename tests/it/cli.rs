@@ -147,7 +147,10 @@ fn export_and_import_through_the_binary() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
 
+#[test]
 fn diagnose_runs_the_documented_emps_command() {
     let dir = std::env::temp_dir().join(format!("axb-diag-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("tmp");
