@@ -1,6 +1,7 @@
 //! Figures an engineer reads off a run: following-error and position-error peaks and RMS,
 //! and the peak error after each reversal of the command, split by direction.
 
+use crate::preset::comp::Reversal as Direction;
 use crate::trace::Trace;
 
 /// Increments of the command below this (mm) are standstill, not motion.
@@ -8,12 +9,15 @@ const MOVE_EPS_MM: f64 = 1e-9;
 /// Longest window after a reversal in which its peak error is looked for.
 const REVERSAL_WINDOW_S: f64 = 0.25;
 
+/// One reversal of the program command and the error it leaves (the quadrant glitch, lost motion).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Reversal {
+    /// Time of the first sample moving the new way, s.
     pub t_s: f64,
+    /// Turning point: the command at the sample before the reversal, mm.
     pub pos_mm: f64,
-    /// "+→−" or "−→+".
-    pub direction: String,
+    /// Which reversal (+ to −, or − to +).
+    pub direction: Direction,
     /// Largest change of the error (cmd − pos), in the window after the reversal, from its
     /// steady value in the old direction (taken mid-way through the previous stroke): the
     /// step or spike the reversal causes. A constant offset (which setting the reference
@@ -26,13 +30,20 @@ pub struct Reversal {
     pub peak_abs_err_mm: f64,
 }
 
+/// Error figures of one axis over a whole trace.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct AxisSummary {
+    /// Axis name as in the trace columns, e.g. "x".
     pub axis: String,
+    /// Largest |following error| of the position loop (`ferr`), mm; the position error if absent.
     pub max_ferr_mm: f64,
+    /// RMS following error (`ferr`), mm; the position error's if absent.
     pub rms_ferr_mm: f64,
+    /// Largest |cmd − pos|: program command minus measured position, mm.
     pub max_err_mm: f64,
+    /// RMS of cmd − pos, mm.
     pub rms_err_mm: f64,
+    /// Every reversal of the command, in time order.
     pub reversals: Vec<Reversal>,
 }
 
@@ -66,6 +77,7 @@ fn max_rms(v: impl Iterator<Item = f64>) -> (f64, f64) {
     (max, if n > 0 { (sq / n as f64).sqrt() } else { 0.0 })
 }
 
+/// Error figures for every axis of `trace` that has both `cmd` and `pos`.
 pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
     let t = trace.t();
     trace
@@ -109,7 +121,11 @@ pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
                     Reversal {
                         t_s: t0,
                         pos_mm: cmd[i.saturating_sub(1)],
-                        direction: if s > 0.0 { "−→+" } else { "+→−" }.into(),
+                        direction: if s > 0.0 {
+                            Direction::MinusToPlus
+                        } else {
+                            Direction::PlusToMinus
+                        },
                         peak_err_mm: peak,
                         settled_err_mm: window().last().map_or(0.0, |k| err[k] - e0),
                         peak_abs_err_mm: peak_abs,
@@ -164,7 +180,7 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
         } else if a.reversals.len() > 12 {
             let (mut up, mut dn) = (0.0_f64, 0.0_f64);
             for r in &a.reversals {
-                if r.direction.starts_with('+') {
+                if r.direction == Direction::PlusToMinus {
                     dn = dn.max(r.peak_err_mm);
                 } else {
                     up = up.max(r.peak_err_mm);
@@ -180,7 +196,7 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
         for r in a.reversals.iter().filter(|_| a.reversals.len() <= 12) {
             s += &format!(
                 "  reversal {} at t = {:.4} s, {} = {:.4} mm: peak error change {:.4} µm, settled change {:+.4} µm (peak |error| {:.4} µm)\n",
-                r.direction,
+                r.direction.arrow(),
                 r.t_s,
                 a.axis,
                 r.pos_mm,

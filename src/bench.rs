@@ -4,7 +4,9 @@
 
 use std::time::Instant;
 
+use crate::drive::{AxisLoop, LoopInput};
 use crate::machine::{Machine, MachineError};
+use crate::plant::Start;
 use crate::preset::{self, Coupling, Feedback, Preset};
 
 /// The embedded default preset with every plant effect switched on, on `n_axes` axes.
@@ -60,11 +62,16 @@ pub fn bench_program(n_axes: usize) -> String {
     s
 }
 
+/// One throughput measurement of the full model.
 #[derive(Debug, Clone)]
 pub struct BenchFigure {
+    /// Axes simulated (1–3).
     pub n_axes: usize,
+    /// Machine steps (T3 periods) run per attempt.
     pub steps: u64,
+    /// Whether the trace was recorded during the run.
     pub recording: bool,
+    /// Throughput: T3 periods × axes per second of wall time, best of three attempts.
     pub axis_steps_per_s: f64,
 }
 
@@ -78,7 +85,7 @@ pub fn run(n_axes: usize, axis_steps: u64, recording: bool) -> Result<BenchFigur
         let mut m = Machine::new(&p, &[("bench.ngc".into(), prog.clone())])?;
         m.set_recording(recording);
         let t0 = Instant::now();
-        m.run_steps(steps);
+        m.run_steps(steps)?;
         let dt = t0.elapsed().as_secs_f64();
         std::hint::black_box(m.axes[0].pos_m);
         best = best.min(dt);
@@ -88,5 +95,71 @@ pub fn run(n_axes: usize, axis_steps: u64, recording: bool) -> Result<BenchFigur
         steps,
         recording,
         axis_steps_per_s: (steps * n_axes as u64) as f64 / best,
+    })
+}
+
+/// The inputs of axis 0's loop at every T3 of a run of `preset` (recording off), to replay
+/// through [`AxisLoop::step`] alone.
+pub fn recorded_inputs(
+    p: &Preset,
+    programs: &[(String, String)],
+) -> Result<Vec<LoopInput>, MachineError> {
+    let mut m = Machine::new(p, programs)?;
+    m.set_recording(false);
+    let mut out = Vec::new();
+    while !m.done() && out.len() < 20_000_000 {
+        let t_s = m.t_s();
+        m.step();
+        let a = &m.axes[0];
+        let s = a.axis_loop.sample();
+        out.push(LoopInput {
+            t_s,
+            cmd_raw_m: s.cmd_raw_m,
+            cmd_nc_m: s.cmd_nc_m,
+            acc_cmd_mps2: a.acc_cmd_mps2(),
+            ext_force_n: 0.0,
+        });
+    }
+    Ok(out)
+}
+
+/// [`AxisLoop::step`] alone on the default preset's X axis, driven by the inputs the machine
+/// gave it on the default program (tiled to `steps`), best of three: the figure the numba
+/// peer (`tools/peer`) is compared with, step for step on the same input.
+pub fn step_kernel(steps: u64) -> Result<BenchFigure, MachineError> {
+    let lp = preset::load_embedded("default.ron")?;
+    let p = &lp.preset;
+    let programs = vec![("default.ngc".to_owned(), lp.program_text("default.ngc")?)];
+    let inputs = recorded_inputs(p, &programs)?;
+    let n = inputs.len().max(1);
+    let a = &p.axes[0];
+    let x0 = inputs.first().map_or(0.0, |i| i.cmd_raw_m);
+    let mut best = f64::INFINITY;
+    for _ in 0..3 {
+        let mut l = AxisLoop::new(
+            a,
+            p.timing.t3_s,
+            Start::at_rest(a.servo.feedback.into(), x0),
+            x0,
+            x0,
+            crate::comp::servo_comps(0, a),
+        );
+        let t0 = Instant::now();
+        let mut left = steps as usize;
+        let mut sum = 0.0;
+        while left > 0 {
+            let m = left.min(n);
+            l.run(&inputs[..m], |_, s| sum += s.plant.pos_m);
+            left -= m;
+        }
+        std::hint::black_box(sum);
+        best = best.min(t0.elapsed().as_secs_f64());
+        std::hint::black_box(l.plant().out().pos_m);
+    }
+    Ok(BenchFigure {
+        n_axes: 1,
+        steps,
+        recording: false,
+        axis_steps_per_s: steps as f64 / best,
     })
 }

@@ -7,10 +7,10 @@ use clap::{Parser, Subcommand};
 
 use axisbench::Machine;
 use axisbench::analysis;
-use axisbench::comp::measure;
 use axisbench::comp::quadrant::Quadrant;
 use axisbench::comp::thermal::Thermal;
 use axisbench::export::{self, ExportOptions, Status, Target};
+use axisbench::measure;
 use axisbench::preset::{self, LoadedPreset};
 
 /// println! that ends the program quietly when stdout is closed (`| head`), instead of
@@ -35,6 +35,54 @@ macro_rules! say_raw {
 }
 
 mod diag;
+
+/// A flag or argument outside what it can mean: bad usage, exit status 2 (bad input,
+/// a file that does not parse or a preset that is invalid, exits with 1).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// `value` of flag `name` if it is finite and within `lo ..= hi`.
+fn flag(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(value)
+    } else {
+        Err(UsageError(format!(
+            "{name} {}: must be a number in {lo} … {hi}{}",
+            axisbench::preset::fields::short(value),
+            if unit.is_empty() {
+                String::new()
+            } else {
+                format!(" {unit}")
+            }
+        ))
+        .into())
+    }
+}
+
+/// A whole-number flag within `lo ..= hi`.
+fn count_flag(name: &str, value: u64, lo: u64, hi: u64) -> Result<u64> {
+    if (lo..=hi).contains(&value) {
+        Ok(value)
+    } else {
+        Err(UsageError(format!(
+            "{name} {value}: must be a whole number in {lo} … {hi}"
+        ))
+        .into())
+    }
+}
+
+/// The exit status for an error: 2 for bad usage, 1 for bad input.
+pub fn exit_status(e: &anyhow::Error) -> i32 {
+    let usage = e.chain().any(|c| {
+        c.downcast_ref::<UsageError>().is_some()
+            || matches!(
+                c.downcast_ref::<axisbench::MachineError>(),
+                Some(axisbench::MachineError::Argument(_))
+            )
+    });
+    if usage { 2 } else { 1 }
+}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -141,6 +189,10 @@ pub enum Command {
         /// Time the diagnosis of a generated record of this many samples instead.
         #[arg(long, value_name = "SAMPLES")]
         diagnose: Option<usize>,
+        /// Only this figure: `step` (AxisLoop::step alone), `off` (full model, recording
+        /// off) or `on` (recording on).
+        #[arg(long, value_parser = ["step", "off", "on"])]
+        only: Option<String>,
     },
     /// Sim-to-real diagnosis: replay a measured record through the preset, find where the
     /// residual lies and which unmodelled effect explains it, and how far it shrinks.
@@ -179,6 +231,12 @@ pub enum Command {
     },
     /// Blind check of the diagnosis: generated cases with hidden effects.
     DiagnoseEval {
+        /// Which generator makes the records: `independent` (a second simulator sharing no
+        /// code with the model: the honest figure) or `own` (the model itself:
+        /// in-distribution).
+        #[arg(long, default_value = "independent", value_parser = ["independent", "own"])]
+        generator: String,
+        /// Cases of the own generator (the independent set has a fixed composition).
         #[arg(long, default_value_t = 70)]
         cases: usize,
         #[arg(long, default_value_t = 1)]
@@ -192,6 +250,22 @@ pub enum Command {
         /// Run only these case numbers (comma-separated), e.g. to look at one closely.
         #[arg(long, value_delimiter = ',')]
         only: Vec<usize>,
+    },
+    /// Write the independent generator's check cases (records of a second simulator with
+    /// known hidden effects) to DIR: <name>.csv, <name>.ron (nominal preset), truth.json.
+    GenCases {
+        /// Output folder (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Seconds per case, 1–3600 (default: drawn per case in 30–60 s).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Only these kinds (comma-separated): clean, single, pair, clean_skew,
+        /// single_skew, pair_skew.
+        #[arg(long, value_delimiter = ',')]
+        kind: Vec<String>,
     },
 }
 
@@ -293,7 +367,18 @@ pub fn run(cli: Cli) -> Result<()> {
             out,
             sets,
             horizon,
-        }) => export(&preset, &to, &out, &sets, horizon),
+        }) => {
+            if let Some(h) = horizon {
+                flag(
+                    "--horizon",
+                    h,
+                    0.01,
+                    axisbench::preset::rules::MAX_DURATION_S,
+                    "s",
+                )?;
+            }
+            export(&preset, &to, &out, &sets, horizon)
+        }
         Some(Command::Import {
             from,
             input,
@@ -303,6 +388,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Some(Command::Bench {
             frames: Some(n), ..
         }) => {
+            count_flag("--frames", n as u64, 1, 100_000)?;
             let (mean, p99, max) = crate::app::bench_frames(n)?;
             say!(
                 "frames={n} window=10s rate=8kHz plots=4 frame_ms_mean={mean:.3} frame_ms_p99={p99:.3} frame_ms_max={max:.3}"
@@ -311,8 +397,14 @@ pub fn run(cli: Cli) -> Result<()> {
         }
         Some(Command::Bench {
             diagnose: Some(n), ..
-        }) => diag::bench(n),
-        Some(Command::Bench { steps, .. }) => bench(steps),
+        }) => {
+            count_flag("--diagnose", n as u64, 1000, 10_000_000)?;
+            diag::bench(n)
+        }
+        Some(Command::Bench { steps, only, .. }) => {
+            count_flag("--steps", steps, 1000, 10_000_000_000)?;
+            bench(steps, only.as_deref())
+        }
         Some(Command::Diagnose {
             preset,
             trace,
@@ -324,26 +416,105 @@ pub fn run(cli: Cli) -> Result<()> {
             report,
             apply,
             residuals,
-        }) => diag::diagnose(diag::Args {
-            residuals,
-            preset,
-            trace,
-            map,
-            validate,
-            holdout,
-            axis,
-            effects,
-            report,
-            apply,
-        }),
+        }) => {
+            if validate.is_none() {
+                flag("--holdout", holdout, 0.05, 0.8, "of the record")?;
+            }
+            diag::diagnose(diag::Args {
+                residuals,
+                preset,
+                trace,
+                map,
+                validate,
+                holdout,
+                axis,
+                effects,
+                report,
+                apply,
+            })
+        }
         Some(Command::DiagnoseEval {
+            generator,
             cases,
             seed,
             duration,
             verbose,
             only,
-        }) => diag::eval(cases, seed, duration, verbose, only),
+        }) => {
+            count_flag("--cases", cases as u64, 1, 10_000)?;
+            flag("--duration", duration, 5.0, 3600.0, "s")?;
+            diag::eval(&generator, cases, seed, duration, verbose, only)
+        }
+        Some(Command::GenCases {
+            out,
+            seed,
+            duration,
+            kind,
+        }) => gen_cases(&out, seed, duration, &kind),
     }
+}
+
+/// `gen-cases`: the independent generator's standard set, filtered by kind, on disk.
+fn gen_cases(
+    out: &std::path::Path,
+    seed: u64,
+    duration: Option<f64>,
+    kinds: &[String],
+) -> Result<()> {
+    use axisbench::indep::{self, CaseKind};
+    if let Some(d) = duration
+        && !(d.is_finite() && (1.0..=3600.0).contains(&d))
+    {
+        bail!("--duration {d}: must be a number of seconds in 1…3600");
+    }
+    let mut want = Vec::new();
+    for k in kinds {
+        match CaseKind::from_name(k.trim()) {
+            Some(kind) => want.push(kind),
+            None => bail!(
+                "--kind {k}: unknown kind; kinds are {}",
+                CaseKind::ALL.map(|k| k.name()).join(", ")
+            ),
+        }
+    }
+    let mut specs = indep::standard_set(seed, duration.unwrap_or(45.0));
+    specs.retain(|s| want.is_empty() || want.contains(&CaseKind::of(s)));
+    for s in specs.iter_mut().filter(|_| duration.is_none()) {
+        s.duration_s = None;
+    }
+    let t0 = std::time::Instant::now();
+    let mut cases = Vec::with_capacity(specs.len());
+    for (i, s) in specs.iter().enumerate() {
+        eprint!("\r[{}/{}] {:<16}", i + 1, specs.len(), s.name);
+        cases.push(indep::generate(s).with_context(|| format!("generating {}", s.name))?);
+    }
+    eprintln!();
+    let files = indep::write_cases(out, &cases)?;
+    say!(
+        "{} cases ({} files) written to {} in {:.1} s; the truths are in truth.json",
+        cases.len(),
+        files.len(),
+        out.display(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// The error and its causes on one line, each cause once: a cause whose text the message
+/// already holds (an OS error an error type also prints) is not repeated.
+pub fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let c = cause.to_string();
+        if text.contains(&c) {
+            continue;
+        }
+        if !text.is_empty() {
+            text += ": ";
+        }
+        text += &c;
+    }
+    text
 }
 
 fn open_gui(preset: Option<PathBuf>, run: bool) -> Result<()> {
@@ -368,7 +539,7 @@ pub fn load_with_sets(path: &str, sets: &[String]) -> Result<LoadedPreset> {
         let (k, v) = s
             .split_once('=')
             .with_context(|| format!("--set {s}: expected PATH=VALUE"))?;
-        lp.preset = lp.preset.with_override(k.trim(), v.trim())?;
+        lp.preset = lp.preset.set(k.trim(), v.trim())?;
     }
     Ok(lp)
 }
@@ -399,12 +570,17 @@ fn simulate(
 ) -> Result<()> {
     let mut lp = load_with_sets(preset_path, sets)?;
     if let Some(d) = duration {
-        if !(d.is_finite() && d > 0.0) {
-            bail!("--duration {d}: must be a positive number of seconds");
-        }
+        flag(
+            "--duration",
+            d,
+            lp.preset.timing.t3_s,
+            axisbench::preset::rules::MAX_DURATION_S,
+            "s",
+        )?;
         lp.preset.scenario.duration_s = Some(d);
     }
     if let Some(n) = measure_cross {
+        count_flag("--measure-cross", n as u64, 2, 65)?;
         let cb = lp.preset.crossbeam.clone();
         if !cb.enabled {
             bail!("--measure-cross: {} has no crossbeam", lp.origin);
@@ -426,7 +602,7 @@ fn simulate(
     let runs: Vec<(&str, axisbench::Preset)> = if compare {
         vec![
             ("compensated", lp.preset.clone()),
-            ("uncompensated", measure::uncompensated_scenario(&lp.preset)),
+            ("uncompensated", lp.preset.compensations_off()),
         ]
     } else {
         vec![("", lp.preset.clone())]
@@ -435,7 +611,10 @@ fn simulate(
         let mut m = Machine::new(&p, &texts)?;
         m.trace.meta.push(("preset_file".into(), lp.origin.clone()));
         let limit_s = duration.unwrap_or(4.0 * 3600.0);
-        m.run(limit_s);
+        if let Some(d) = duration {
+            trace_fits(&m, d)?;
+        }
+        m.run(limit_s)?;
         if !m.done() {
             eprintln!(
                 "warning: stopped after {limit_s} s of machine time before the program ended"
@@ -455,31 +634,50 @@ fn simulate(
     Ok(())
 }
 
+/// Refuses, before running, a fixed-length run whose trace would outgrow its memory limit.
+fn trace_fits(m: &Machine, duration_s: f64) -> Result<()> {
+    let every = f64::from(m.preset.scenario.trace_every.max(1));
+    let rows = duration_s / m.t3_s / every;
+    let bytes = rows * m.trace.signals.len() as f64 * 8.0;
+    let limit = axisbench::machine::MAX_TRACE_BYTES as f64;
+    if bytes > limit {
+        let need = (bytes / limit).ceil();
+        return Err(UsageError(format!(
+            "--duration {duration_s} s would record {rows:.3e} rows, about {:.1} GiB of trace (limit {:.1} GiB): record every n-th sample with --set scenario.trace_every={} or more, or shorten --duration",
+            bytes / f64::from(1u32 << 30),
+            limit / f64::from(1u32 << 30),
+            (need * every) as u64
+        ))
+        .into());
+    }
+    Ok(())
+}
+
 /// What the compensations did, in one line each.
 fn comp_report(m: &Machine) -> String {
     let mut s = String::new();
-    for t in m.comps().find::<Thermal>() {
+    for t in m.find_comp::<Thermal>() {
         s += &format!(
             "thermal correction: {} measurements, a = {:.4}, E = {:.4}, F = {:.3} µm\n",
             t.measurements,
             t.p.a,
             t.e,
-            t.f_m * 1e6
+            axisbench::units::m_to_um(t.f_m)
         );
     }
-    for (q, a) in m.comps().find::<Quadrant>().zip(m.axes.iter()) {
+    for (q, a) in m.find_comp::<Quadrant>().zip(m.axes.iter()) {
         s += &format!(
             "quadrant {}: {} reversals, last PA = {:.3} mm, N = {}, M = {:.4}, T = {:.2} ms\n",
             a.name,
             q.reversals,
             if q.pa_m.is_finite() {
-                q.pa_m * 1e3
+                axisbench::units::m_to_mm(q.pa_m)
             } else {
                 0.0
             },
             q.n,
             q.m,
-            q.t_s * 1e3
+            axisbench::units::s_to_ms(q.t_s)
         );
     }
     s
@@ -501,6 +699,12 @@ fn measure(what: MeasureCmd) -> Result<()> {
             to,
         } => {
             let lp = preset::load(&preset)?;
+            count_flag("--points", points as u64, 2, 1000)?;
+            for (name, v) in [("--from", from), ("--to", to)] {
+                if let Some(v) = v {
+                    flag(name, v, -1e5, 1e5, "mm")?;
+                }
+            }
             let span = lp.preset.crossbeam.span_mm;
             let table = measure::sag_table(
                 &lp.preset,
@@ -642,7 +846,37 @@ fn import(from: &str, input: &std::path::Path, base: &str, out: &std::path::Path
     Ok(())
 }
 
-fn bench(steps: u64) -> Result<()> {
+fn bench(steps: u64, only: Option<&str>) -> Result<()> {
+    let want = |k: &str| only.is_none_or(|o| o == k);
+    if want("step") {
+        let f = axisbench::bench::step_kernel(steps)?;
+        say!(
+            "step alone (AxisLoop::step, default.ron x, recorded inputs) steps={} axis_steps_per_s={:.0}",
+            f.steps,
+            f.axis_steps_per_s
+        );
+    }
+    if want("off") && !want("on") {
+        let f = axisbench::bench::run(1, steps, false)?;
+        say!(
+            "axes=1 recording=off steps={} axis_steps_per_s={:.0}",
+            f.steps,
+            f.axis_steps_per_s
+        );
+        return Ok(());
+    }
+    if want("on") && !want("off") {
+        let f = axisbench::bench::run(1, steps, true)?;
+        say!(
+            "axes=1 recording=on steps={} axis_steps_per_s={:.0}",
+            f.steps,
+            f.axis_steps_per_s
+        );
+        return Ok(());
+    }
+    if only.is_some() {
+        return Ok(());
+    }
     for n in [1, 3] {
         let f = axisbench::bench::run(n, steps, false)?;
         say!(

@@ -11,73 +11,148 @@
 //! - the plant advances by T3, the beam sag follows the X positions of the tool posts;
 //! - the trace records the sample.
 
-use crate::comp::{CompStack, PosCompCtx, ServoCompCtx, ServoCompOut};
+use crate::comp::{CompStack, PosCompCtx, ServoComp};
+use crate::drive::{AxisLoop, LoopInput, SegmentAcc};
 use crate::nc::Channel;
 use crate::nc::program::{self, ProgramError};
-use crate::plant::{AxisPlant, Beam};
-use crate::preset::{Feedback, LoadedPreset, Mode, Preset, PresetError};
-use crate::servo::{Servo, force_per_torque};
+use crate::plant::{Beam, Start};
+use crate::preset::{FieldError, LoadedPreset, Mode, PosSource, Preset, PresetError};
 use crate::trace::Trace;
+use crate::units::{m_to_mm, mm_to_m};
 
+/// Why a machine could not be built or changed.
 #[derive(Debug, thiserror::Error)]
 pub enum MachineError {
+    /// The preset is invalid.
     #[error(transparent)]
     Preset(#[from] PresetError),
+    /// A program does not parse or compile.
     #[error(transparent)]
     Program(#[from] ProgramError),
+    /// The structure (axes, channels, programs) does not fit.
     #[error("{0}")]
     Structure(String),
+    /// An argument out of its range (a measuring interval, a time).
+    #[error("{0}")]
+    Argument(String),
+    /// The model left every physical range: the settings are the likely cause.
+    #[error("the model diverged at t = {t_s:.4} s: axis {axis} {what}; check {hint}")]
+    Diverged {
+        /// Machine time, s.
+        t_s: f64,
+        /// The axis.
+        axis: String,
+        /// What left its range.
+        what: String,
+        /// The fields most likely to blame.
+        hint: String,
+    },
+    /// The recorded trace grew past its memory limit.
+    #[error(
+        "the trace reached {mib:.0} MiB at t = {t_s:.1} s ({rows} rows of {cols} columns), the limit is {limit_mib:.0} MiB: record every n-th sample (--set scenario.trace_every=N) or shorten the run"
+    )]
+    TraceTooLarge {
+        /// Machine time, s.
+        t_s: f64,
+        /// Rows so far.
+        rows: usize,
+        /// Columns.
+        cols: usize,
+        /// Size so far, MiB.
+        mib: f64,
+        /// The limit, MiB.
+        limit_mib: f64,
+    },
 }
 
-/// Per-axis runtime: amplifier, plant and the command buffer of the current T2 period.
+/// Default memory limit of a recorded trace: with the model and a CSV writer it keeps a
+/// run well inside 2 GB.
+pub const MAX_TRACE_BYTES: usize = 1 << 30;
+/// Beyond this position (m) or speed (m/s) no feed axis can be: the loop has diverged.
+const DIVERGED_POS_M: f64 = 1e3;
+/// See [`DIVERGED_POS_M`].
+const DIVERGED_VEL_MPS: f64 = 1e3;
+
+/// Every check a preset must pass before a model runs on it: the data rules of
+/// [`Preset::validate`] and, once the numbers are sound, the closed-loop stability of each
+/// axis (which needs the model, so it cannot live in the data layer).
+pub fn check(p: &Preset) -> Vec<FieldError> {
+    let mut errors = p.validate();
+    if errors.is_empty() {
+        for a in &p.axes {
+            if let Err(reason) = crate::drive::check_stability(a, p.timing.t3_s) {
+                errors.push(FieldError {
+                    path: format!("axes.{}.servo", a.name),
+                    reason,
+                });
+            }
+        }
+    }
+    errors
+}
+
+/// [`check`] as a `Result`, naming `file` in the error.
+pub fn checked(p: &Preset, file: &str) -> Result<(), PresetError> {
+    let errors = check(p);
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(PresetError::Invalid {
+            file: file.to_owned(),
+            errors,
+        })
+    }
+}
+
+/// Per-axis runtime: the axis loop and the command buffer of the current T2 period.
 pub struct AxisRt {
+    /// The axis name from the preset.
     pub name: String,
+    /// The NC channel that drives it.
     pub channel: usize,
     /// Index of this axis inside its channel.
     pub ch_idx: usize,
-    pub servo: Servo,
-    pub plant: AxisPlant,
-    lead_m: f64,
-    /// Load-side force per motor torque, 2π/lead.
-    f_per_t: f64,
+    /// Amplifier + mechanics + servo-stage compensations.
+    pub axis_loop: AxisLoop,
     buf_raw: Vec<f64>,
     buf_comp: Vec<f64>,
-    prev_raw_m: f64,
     prev_comp_m: f64,
-    /// Velocity of the previous T2 command segment, for the acceleration feed-forward.
-    seg_vel_mps: f64,
-    /// Commanded acceleration over the current T2 segment.
-    pub acc_cmd_mps2: f64,
-    /// Command of this T3 before compensation (what the program asked for), m.
-    pub cmd_raw_m: f64,
-    /// Command from the NC after the position compensations, m.
-    pub cmd_nc_m: f64,
-    /// Command the position loop saw (after all compensations), m.
-    pub cmd_m: f64,
+    /// The per-T2 acceleration feed-forward; its segment end is the latest raw command.
+    seg: SegmentAcc,
+    /// Command from the NC after the position compensations for the current T3, m.
+    cmd_nc_m: f64,
     /// Structural displacement the scale does not see (crossbeam sag), m.
     pub sag_m: f64,
     /// True tool position: plant position plus sag, m.
     pub pos_m: f64,
-    pub servo_add: ServoCompOut,
-    post_z: bool,
-    /// Plant output and true position at the start of the latest T3 (what the trace row
-    /// for that instant shows, next to the command and feedback the servo used).
-    sample_out: crate::plant::PlantOut,
+    /// True position at the start of the latest T3 (what its trace row shows).
     sample_pos_m: f64,
 }
 
 impl AxisRt {
+    /// The position feedback the amplifier closes its loop on, m.
     pub fn feedback_m(&self) -> f64 {
-        match self.servo.feedback {
-            Feedback::Motor => self.plant.out.motor_enc_m,
-            Feedback::Scale => self.plant.out.scale_m,
-        }
+        self.axis_loop.feedback_m()
     }
+    /// Motor torque command of the latest period, N·m.
     pub fn torque_cmd_nm(&self) -> f64 {
-        self.servo.force_cmd_n / force_per_torque(self.lead_m)
+        self.axis_loop.sample().servo.force_cmd_n / self.axis_loop.force_per_torque()
     }
+    /// Motor torque of the latest period, N·m.
     pub fn torque_nm(&self) -> f64 {
-        self.servo.force_n / force_per_torque(self.lead_m)
+        self.axis_loop.sample().servo.force_n / self.axis_loop.force_per_torque()
+    }
+    /// The command of the latest period before any compensation, m.
+    pub fn cmd_raw_m(&self) -> f64 {
+        self.axis_loop.sample().cmd_raw_m
+    }
+    /// The command the position loop saw in the latest period, m.
+    pub fn cmd_m(&self) -> f64 {
+        self.axis_loop.sample().cmd_m
+    }
+    /// The commanded acceleration of the current T2 segment, m/s².
+    pub fn acc_cmd_mps2(&self) -> f64 {
+        self.seg.acc_mps2()
     }
 }
 
@@ -91,7 +166,8 @@ struct Recorder {
     comp_vals: Vec<f64>,
 }
 
-const AXIS_SIGNALS: &[(&str, &str)] = &[
+/// The per-axis trace signals, in column order, with their units.
+pub const AXIS_SIGNALS: &[(&str, &str)] = &[
     ("cmd", "mm"),
     ("cmd_comp", "mm"),
     ("comp", "mm"),
@@ -110,10 +186,16 @@ const AXIS_SIGNALS: &[(&str, &str)] = &[
     ("sag", "mm"),
 ];
 
+/// The whole simulated machine: NC channels, position compensations, one [`AxisLoop`] per
+/// axis, the crossbeam, and the trace.
 pub struct Machine {
+    /// The preset the machine was built from (with any live edits).
     pub preset: Preset,
+    /// The amplifier period T3, s.
     pub t3_s: f64,
+    /// T1/T2.
     pub n12: u32,
+    /// T2/T3.
     pub n23: u32,
     /// T3 steps done.
     pub k: u64,
@@ -121,9 +203,12 @@ pub struct Machine {
     phase: usize,
     /// (j + 1)/n23 for j in 0..n23: where each T3 lies on the amplifier's interpolation.
     frac: Vec<f64>,
+    /// The NC channels, one per program.
     pub channels: Vec<Channel>,
+    /// The axes, in preset order.
     pub axes: Vec<AxisRt>,
     beam: Option<Beam>,
+    /// The position-stage compensations (the servo-stage ones live in each axis loop).
     comps: CompStack,
     comp_counts: Vec<usize>,
     plc_next: usize,
@@ -136,6 +221,7 @@ pub struct Machine {
     comp_fb: Vec<f64>,
     comp_temp: Vec<f64>,
     x_pos: Vec<f64>,
+    /// The recorded trace (empty while recording is off).
     pub trace: Trace,
     rec: Option<Recorder>,
     end_k: Option<u64>,
@@ -157,14 +243,7 @@ impl Machine {
     /// Builds a machine from a preset and the text of each channel's program
     /// (`(file name for errors, text)`).
     pub fn new(preset: &Preset, programs: &[(String, String)]) -> Result<Machine, MachineError> {
-        let errors = preset.validate();
-        if !errors.is_empty() {
-            return Err(PresetError::Invalid {
-                file: preset.name.clone(),
-                errors,
-            }
-            .into());
-        }
+        checked(preset, &preset.name)?;
         if programs.len() != preset.scenario.programs.len() {
             return Err(MachineError::Structure(format!(
                 "{} programs given, the preset has {} channels",
@@ -180,91 +259,20 @@ impl Machine {
             (Some(a), Some(b)) => (a, b),
             _ => return Err(MachineError::Structure("timing ratios".into())),
         };
-        let t3 = t.t3_s;
-        let mut channels = Vec::new();
-        let mut axes: Vec<AxisRt> = Vec::new();
-        for (ci, (file, text)) in programs.iter().enumerate() {
-            let ch_axes: Vec<(usize, &crate::preset::AxisParams)> = preset
-                .axes
-                .iter()
-                .enumerate()
-                .filter(|(_, a)| a.channel == ci)
-                .collect();
-            let letters: Vec<char> = ch_axes.iter().map(|(_, a)| a.letter).collect();
-            let start: Vec<f64> = ch_axes
-                .iter()
-                .map(|(_, a)| a.initial_pos_mm * 1e-3)
-                .collect();
-            let blocks = program::parse(text, file)?;
-            let ops = program::compile(
-                &blocks,
-                &letters,
-                &start,
-                preset.nc.default_feed_mm_per_min,
-                preset.nc.rapid_mm_per_min,
-                file,
-            )?;
-            channels.push(Channel::new(
-                ops,
-                &start,
-                preset.nc.initial_mode,
-                preset.nc.accdec.clone(),
-                crate::nc::ChannelTiming {
-                    t1_s: t.t1_s,
-                    t3_s: t3,
-                    n12,
-                    n23,
-                },
-            ));
-        }
-        for a in &preset.axes {
-            let ch_idx = preset
-                .axes
-                .iter()
-                .filter(|b| b.channel == a.channel)
-                .position(|b| b.name == a.name)
-                .unwrap_or(0);
-            let x0 = a.initial_pos_mm * 1e-3;
-            let plant = AxisPlant::new(a, t3, x0);
-            let pos = plant.out.pos_m;
-            axes.push(AxisRt {
-                name: a.name.clone(),
-                channel: a.channel,
-                ch_idx,
-                servo: Servo::new(a, t3, x0),
-                plant,
-                lead_m: a.drive.lead_mm * 1e-3,
-                f_per_t: force_per_torque(a.drive.lead_mm * 1e-3),
-                buf_raw: vec![x0; n23 as usize],
-                buf_comp: vec![x0; n23 as usize],
-                prev_raw_m: x0,
-                prev_comp_m: x0,
-                seg_vel_mps: 0.0,
-                acc_cmd_mps2: 0.0,
-                cmd_raw_m: x0,
-                cmd_nc_m: x0,
-                cmd_m: x0,
-                sag_m: 0.0,
-                pos_m: pos,
-                servo_add: ServoCompOut::default(),
-                post_z: false,
-                sample_out: crate::plant::PlantOut::default(),
-                sample_pos_m: pos,
-            });
-        }
+        let channels = build_channels(preset, programs, n12, n23)?;
+        let axes: Vec<AxisRt> = preset
+            .axes
+            .iter()
+            .map(|a| new_axis(preset, a, n23 as usize, mm_to_m(a.initial_pos_mm), vec![]))
+            .collect();
         let beam = Beam::new(&preset.crossbeam, |n| axes.iter().position(|a| a.name == n));
-        if let Some(b) = &beam {
-            for p in &b.posts {
-                axes[p.z_axis].post_z = true;
-            }
-        }
         let n_ax = axes.len();
         let ch_sizes: Vec<usize> = (0..channels.len())
             .map(|c| axes.iter().filter(|a| a.channel == c).count())
             .collect();
         let mut m = Machine {
             preset: preset.clone(),
-            t3_s: t3,
+            t3_s: t.t3_s,
             n12,
             n23,
             k: 0,
@@ -293,29 +301,56 @@ impl Machine {
             end_k: None,
         };
         for (i, a) in m.axes.iter().enumerate() {
-            m.comp_prev[i] = a.prev_raw_m;
+            m.comp_prev[i] = a.seg.end_m();
         }
         m.update_sag();
-        let comps = crate::comp::build(preset);
-        m.set_comps(comps);
+        m.set_comps(crate::comp::build(preset));
         m.set_recording(true);
         Ok(m)
     }
 
     /// Installs the compensations (replaces any installed before) and re-lays the trace.
+    /// Servo-stage compensations go to the axis loop of their axis. Before the first step,
+    /// the axes are placed at the corrected position (see `start_corrected`).
     pub fn set_comps(&mut self, comps: CompStack) {
-        self.comp_counts = comps
-            .position
-            .iter()
-            .map(|c| c.signals().len())
-            .chain(comps.servo.iter().map(|c| c.signals().len()))
-            .collect();
-        self.comps = comps;
+        self.install(comps);
         if self.k == 0 {
             self.start_corrected();
         }
+    }
+
+    fn install(&mut self, comps: CompStack) {
+        let CompStack { position, servo } = comps;
+        let mut per_axis: Vec<Vec<Box<dyn ServoComp>>> =
+            (0..self.axes.len()).map(|_| Vec::new()).collect();
+        for c in servo {
+            if let Some(v) = per_axis.get_mut(c.axis()) {
+                v.push(c);
+            }
+        }
+        for (a, v) in self.axes.iter_mut().zip(per_axis) {
+            a.axis_loop.set_comps(v);
+        }
+        self.comps = CompStack {
+            position,
+            servo: vec![],
+        };
+        self.comp_counts = self.comp_signal_counts();
         let on = self.rec.is_some();
         self.set_recording(on);
+    }
+
+    fn comp_signal_counts(&self) -> Vec<usize> {
+        self.comps
+            .position
+            .iter()
+            .map(|c| c.signals().len())
+            .chain(
+                self.axes
+                    .iter()
+                    .flat_map(|a| a.axis_loop.comps().iter().map(|c| c.signals().len())),
+            )
+            .collect()
     }
 
     /// At power-up the position corrections are already in force and the axes stand at rest
@@ -324,9 +359,9 @@ impl Machine {
     fn start_corrected(&mut self) {
         let n23 = self.n23 as usize;
         for (i, a) in self.axes.iter().enumerate() {
-            self.comp_cmd[i] = a.prev_raw_m;
+            self.comp_cmd[i] = a.seg.end_m();
             self.comp_fb[i] = a.feedback_m();
-            self.comp_temp[i] = a.plant.thermal.temp_c;
+            self.comp_temp[i] = a.axis_loop.plant().thermal().temp_c;
         }
         self.comp_prev.clone_from(&self.comp_cmd);
         self.run_position_comps(0.0, self.t3_s * n23 as f64);
@@ -335,15 +370,14 @@ impl Machine {
             if off == 0.0 {
                 continue;
             }
-            let x = a.prev_raw_m + off;
             let params = &self.preset.axes[i];
-            a.plant = AxisPlant::new(params, self.t3_s, x);
-            a.servo = Servo::new(params, self.t3_s, x);
+            let raw = a.seg.end_m();
+            let x = raw + off;
+            let start = Start::at_rest(params.servo.feedback.into(), x);
+            a.axis_loop.restart(params, start, raw, x);
             a.prev_comp_m = x;
             a.buf_comp.iter_mut().for_each(|b| *b = x);
             a.cmd_nc_m = x;
-            a.cmd_m = x;
-            a.pos_m = a.plant.out.pos_m + a.sag_m;
         }
         self.update_sag();
     }
@@ -354,14 +388,7 @@ impl Machine {
     /// machine. The set of installed compensations is rebuilt only when one is switched on or
     /// off; otherwise each keeps its state and takes the new parameters.
     pub fn apply_params(&mut self, p: &Preset) -> Result<(), MachineError> {
-        let errors = p.validate();
-        if !errors.is_empty() {
-            return Err(PresetError::Invalid {
-                file: p.name.clone(),
-                errors,
-            }
-            .into());
-        }
+        checked(p, &p.name)?;
         let same = p.axes.len() == self.preset.axes.len()
             && p.axes
                 .iter()
@@ -375,25 +402,16 @@ impl Machine {
             ));
         }
         for (a, params) in self.axes.iter_mut().zip(&p.axes) {
-            a.servo.retune(params);
-            a.plant.retune(params);
-            a.f_per_t = force_per_torque(params.drive.lead_mm * 1e-3);
-            a.lead_m = params.drive.lead_mm * 1e-3;
+            a.axis_loop.retune(params);
         }
         for ch in &mut self.channels {
             ch.set_accdec(p.nc.accdec.clone());
         }
         self.beam = Beam::new(&p.crossbeam, |n| self.axes.iter().position(|a| a.name == n));
-        let enabled = |q: &Preset| -> Vec<bool> {
-            q.axes
-                .iter()
-                .flat_map(|a| [a.backlash.enabled, a.thermal.enabled, a.quadrant.enabled])
-                .chain([q.cross.iter().any(|t| t.enabled)])
-                .collect()
-        };
-        let rebuild = enabled(p) != enabled(&self.preset) || p.cross != self.preset.cross;
-        let old_plc = std::mem::replace(&mut self.preset, p.clone());
-        if old_plc.scenario.plc_events != p.scenario.plc_events {
+        let rebuild =
+            p.enabled_comps() != self.preset.enabled_comps() || p.cross != self.preset.cross;
+        let old = std::mem::replace(&mut self.preset, p.clone());
+        if old.scenario.plc_events != p.scenario.plc_events {
             let t = self.t_s();
             self.plc_next = p
                 .scenario
@@ -403,36 +421,32 @@ impl Machine {
                 .count();
         }
         if rebuild {
-            let stack = crate::comp::build(p);
-            self.comp_counts = stack
-                .position
-                .iter()
-                .map(|c| c.signals().len())
-                .chain(stack.servo.iter().map(|c| c.signals().len()))
-                .collect();
-            self.comps = stack;
-            let on = self.rec.is_some();
-            self.set_recording(on);
+            self.install(crate::comp::build(p));
         } else {
-            for (i, a) in p.axes.iter().enumerate() {
-                for b in self.comps.find_mut::<crate::comp::backlash::Backlash>() {
-                    if b.axis() == i {
-                        b.p = a.backlash.clone();
-                    }
+            self.retune_comps(p);
+        }
+        Ok(())
+    }
+
+    /// Hands new parameters to each installed compensation, keeping its state.
+    fn retune_comps(&mut self, p: &Preset) {
+        for (i, a) in p.axes.iter().enumerate() {
+            for b in self.find_comp_mut::<crate::comp::backlash::Backlash>() {
+                if b.axis() == i {
+                    b.p = a.backlash.clone();
                 }
-                for q in self.comps.find_mut::<crate::comp::quadrant::Quadrant>() {
-                    if crate::comp::ServoComp::axis(q) == i {
-                        q.p = a.quadrant.clone();
-                    }
+            }
+            for q in self.find_comp_mut::<crate::comp::quadrant::Quadrant>() {
+                if ServoComp::axis(q) == i {
+                    q.p = a.quadrant.clone();
                 }
-                for t in self.comps.find_mut::<crate::comp::thermal::Thermal>() {
-                    if t.axis() == i {
-                        t.retune(a.thermal.clone());
-                    }
+            }
+            for t in self.find_comp_mut::<crate::comp::thermal::Thermal>() {
+                if t.axis() == i {
+                    t.retune(a.thermal.clone());
                 }
             }
         }
-        Ok(())
     }
 
     /// A PLC mode request now (the GUI's PLC switch), for `channel`.
@@ -442,12 +456,32 @@ impl Machine {
         }
     }
 
-    pub fn comps(&self) -> &CompStack {
-        &self.comps
+    /// The installed position-stage compensations.
+    pub fn position_comps(&self) -> &[Box<dyn crate::comp::PositionComp>] {
+        &self.comps.position
     }
 
-    pub fn comps_mut(&mut self) -> &mut CompStack {
-        &mut self.comps
+    /// Every installed compensation of type `T`: position stage first, then each axis's
+    /// servo stage.
+    pub fn find_comp<T: 'static>(&self) -> impl Iterator<Item = &T> {
+        self.comps.find::<T>().chain(self.axes.iter().flat_map(|a| {
+            a.axis_loop
+                .comps()
+                .iter()
+                .filter_map(|c| c.as_any().downcast_ref::<T>())
+        }))
+    }
+
+    /// [`Machine::find_comp`], mutable.
+    pub fn find_comp_mut<T: 'static>(&mut self) -> impl Iterator<Item = &mut T> {
+        self.comps
+            .find_mut::<T>()
+            .chain(self.axes.iter_mut().flat_map(|a| {
+                a.axis_loop
+                    .comps_mut()
+                    .iter_mut()
+                    .filter_map(|c| c.as_any_mut().downcast_mut::<T>())
+            }))
     }
 
     /// Turns trace recording on (a fresh trace) or off (benchmarks, batch fitting).
@@ -461,6 +495,15 @@ impl Machine {
         tr.meta.push(("source".into(), "simulated".into()));
         tr.meta.push(("preset".into(), self.preset.name.clone()));
         tr.meta.push(("t3_s".into(), format!("{}", self.t3_s)));
+        tr.meta
+            .push(("t2_s".into(), format!("{}", self.preset.timing.t2_s)));
+        // The simulator's `pos` is the true table position, whatever sensor the real machine
+        // of this preset would record; the diagnosis reads this line to compare like with like.
+        tr.meta
+            .push(("pos_source".into(), PosSource::Load.name().into()));
+        if self.k == 0 {
+            tr.meta.push(("start".into(), "rest".into()));
+        }
         let mut axis_cols = Vec::new();
         for a in &self.axes {
             axis_cols.push(tr.signals.len());
@@ -483,10 +526,12 @@ impl Machine {
                 }
             })
             .collect();
-        let comp_cols: Vec<usize> = self
-            .comps
-            .signals()
-            .iter()
+        let signals = self.comps.position.iter().flat_map(|c| c.signals()).chain(
+            self.axes
+                .iter()
+                .flat_map(|a| a.axis_loop.comps().iter().flat_map(|c| c.signals())),
+        );
+        let comp_cols: Vec<usize> = signals
             .map(|s| {
                 let name = if s.axis.is_empty() {
                     s.signal.clone()
@@ -507,6 +552,7 @@ impl Machine {
         });
     }
 
+    /// Machine time at the start of the next step, s.
     pub fn t_s(&self) -> f64 {
         self.k as f64 * self.t3_s
     }
@@ -526,73 +572,115 @@ impl Machine {
         }
     }
 
-    /// Runs until [`Machine::done`] or `max_s` of machine time, whichever is first.
-    pub fn run(&mut self, max_s: f64) {
+    /// Runs until [`Machine::done`] or `max_s` of machine time, whichever is first. Stops
+    /// with an error when the model diverges or the trace outgrows its memory limit.
+    pub fn run(&mut self, max_s: f64) -> Result<(), MachineError> {
         let max_k = (max_s / self.t3_s).ceil() as u64;
+        // A program-driven run ends when the program does, unknown here: its trace grows.
+        if let Some(d) = self.preset.scenario.duration_s {
+            let until_k = max_k.min((d / self.t3_s).ceil() as u64);
+            self.reserve_rows(until_k.saturating_sub(self.k));
+        }
+        let check = u64::from(self.n23).max(64);
         while !self.done() && self.k < max_k {
             self.step();
+            if self.k.is_multiple_of(check) {
+                self.health()?;
+            }
+        }
+        self.health()
+    }
+
+    /// Runs `n` T3 steps, with the checks of [`Machine::run`].
+    pub fn run_steps(&mut self, n: u64) -> Result<(), MachineError> {
+        self.reserve_rows(n);
+        let check = u64::from(self.n23).max(64);
+        for _ in 0..n {
+            self.step();
+            if self.k.is_multiple_of(check) {
+                self.health()?;
+            }
+        }
+        self.health()
+    }
+
+    /// Makes room for the rows of the next `steps` T3 steps (within the trace's memory
+    /// limit), so that recording never copies the trace to grow it.
+    fn reserve_rows(&mut self, steps: u64) {
+        let Some(rec) = &self.rec else { return };
+        let cols = self.trace.signals.len().max(1);
+        let room =
+            (MAX_TRACE_BYTES / std::mem::size_of::<f64>() / cols).saturating_sub(self.trace.len());
+        let rows = usize::try_from(steps / u64::from(rec.every) + 1)
+            .unwrap_or(usize::MAX)
+            .min(room);
+        for s in &mut self.trace.signals {
+            s.data.reserve(rows);
         }
     }
 
-    /// Runs `n` T3 steps.
-    pub fn run_steps(&mut self, n: u64) {
-        for _ in 0..n {
-            self.step();
+    /// Bytes the recorded trace holds.
+    pub fn trace_bytes(&self) -> usize {
+        self.trace.signals.len() * self.trace.len() * std::mem::size_of::<f64>()
+    }
+
+    /// Whether the state is still physical and the trace within its limit.
+    pub fn health(&self) -> Result<(), MachineError> {
+        for a in &self.axes {
+            let o = a.axis_loop.plant().out();
+            let bad = if !(o.pos_m.is_finite() && o.motor_pos_m.is_finite()) {
+                Some("position is no longer a finite number".to_owned())
+            } else if o.pos_m.abs() > DIVERGED_POS_M {
+                Some(format!("is {:.3e} m from zero", o.pos_m))
+            } else if !o.vel_mps.is_finite() || o.vel_mps.abs() > DIVERGED_VEL_MPS {
+                Some(format!("moves at {:.3e} m/s", o.vel_mps))
+            } else {
+                None
+            };
+            if let Some(what) = bad {
+                return Err(MachineError::Diverged {
+                    t_s: self.t_s(),
+                    axis: a.name.clone(),
+                    what,
+                    hint: format!(
+                        "axes.{}.servo (kp_per_s, kv_n_s_per_m, ki_per_s) against axes.{0}.drive (masses, lead) and timing.t3_s",
+                        a.name
+                    ),
+                });
+            }
         }
+        let bytes = self.trace_bytes();
+        if bytes > MAX_TRACE_BYTES {
+            return Err(MachineError::TraceTooLarge {
+                t_s: self.t_s(),
+                rows: self.trace.len(),
+                cols: self.trace.signals.len(),
+                mib: bytes as f64 / (1u64 << 20) as f64,
+                limit_mib: MAX_TRACE_BYTES as f64 / (1u64 << 20) as f64,
+            });
+        }
+        Ok(())
     }
 
     /// One T3 period of the whole machine.
     pub fn step(&mut self) {
         let t = self.t_s();
-        while let Some(ev) = self.preset.scenario.plc_events.get(self.plc_next) {
-            if ev.t_s > t + 0.5 * self.t3_s {
-                break;
-            }
-            if let Some(ch) = self.channels.get_mut(ev.channel) {
-                ch.request_mode(ev.mode);
-            }
-            self.plc_next += 1;
-        }
+        self.plc_events(t);
         let j = self.phase;
         if j == 0 {
             self.tick_t2(t);
         }
-        for (i, a) in self.axes.iter_mut().enumerate() {
-            let mut add = ServoCompOut::default();
-            let ctx = ServoCompCtx {
-                t_s: t,
-                t3_s: self.t3_s,
-                cmd_m: a.buf_comp[j],
-                prev_cmd_m: a.cmd_nc_m,
-                fb_m: a.feedback_m(),
-            };
-            for c in self.comps.servo.iter_mut().filter(|c| c.axis() == i) {
-                let mut o = ServoCompOut::default();
-                c.step(&ctx, &mut o);
-                add.pos_m += o.pos_m;
-                add.vel_mps += o.vel_mps;
-                add.torque_nm += o.torque_nm;
-            }
-            a.servo_add = add;
-            a.cmd_raw_m = a.buf_raw[j];
+        for a in &mut self.axes {
             a.cmd_nc_m = a.buf_comp[j];
-            a.cmd_m = a.buf_comp[j] + add.pos_m;
-            let input = crate::servo::ServoInput {
-                cmd_m: a.cmd_m,
-                ff_cmd_m: a.cmd_raw_m,
-                fb_pos_m: a.feedback_m(),
-                motor_pos_m: a.plant.out.motor_enc_m,
-                vel_add_mps: add.vel_mps,
-                force_ff_n: add.torque_nm * a.f_per_t,
-                acc_cmd_mps2: a.acc_cmd_mps2,
-            };
-            let force = a.servo.step(&input);
-            a.sample_out = a.plant.out;
             a.sample_pos_m = a.pos_m;
-            a.plant.step(force);
-            // Friction is the force over the step just taken.
-            a.sample_out.friction_n = a.plant.out.friction_n;
-            a.pos_m = a.plant.out.pos_m + a.sag_m;
+            a.axis_loop.step(&LoopInput {
+                t_s: t,
+                cmd_raw_m: a.buf_raw[j],
+                cmd_nc_m: a.cmd_nc_m,
+                acc_cmd_mps2: a.seg.acc_mps2(),
+                ext_force_n: 0.0,
+            });
+            a.pos_m = a.axis_loop.plant().out().pos_m + a.sag_m;
         }
         if self.beam.is_some() {
             self.update_sag();
@@ -607,10 +695,23 @@ impl Machine {
         }
     }
 
+    /// Hands the PLC mode requests due by `t` to their channels.
+    fn plc_events(&mut self, t: f64) {
+        while let Some(ev) = self.preset.scenario.plc_events.get(self.plc_next) {
+            if ev.t_s > t + 0.5 * self.t3_s {
+                break;
+            }
+            if let Some(ch) = self.channels.get_mut(ev.channel) {
+                ch.request_mode(ev.mode);
+            }
+            self.plc_next += 1;
+        }
+    }
+
     fn update_sag(&mut self) {
         if let Some(beam) = &self.beam {
             for (i, a) in self.axes.iter().enumerate() {
-                self.x_pos[i] = a.plant.out.pos_m;
+                self.x_pos[i] = a.axis_loop.plant().out().pos_m;
             }
             let mut sag = [0.0; 2];
             beam.sag_m(&self.x_pos, &mut sag);
@@ -619,7 +720,7 @@ impl Machine {
             }
         }
         for a in &mut self.axes {
-            a.pos_m = a.plant.out.pos_m + a.sag_m;
+            a.pos_m = a.axis_loop.plant().out().pos_m + a.sag_m;
         }
     }
 
@@ -632,7 +733,7 @@ impl Machine {
         }
         for (i, a) in self.axes.iter().enumerate() {
             self.comp_fb[i] = a.feedback_m();
-            self.comp_temp[i] = a.plant.thermal.temp_c;
+            self.comp_temp[i] = a.axis_loop.plant().thermal().temp_c;
         }
         let any_direct = self.ch_mode.contains(&Mode::Direct);
         let gens = if any_direct { n23 } else { 1 };
@@ -643,12 +744,12 @@ impl Machine {
         };
         for g in 0..gens {
             for (i, a) in self.axes.iter().enumerate() {
+                let prev_raw = a.seg.end_m();
                 self.comp_cmd[i] = match self.ch_mode[a.channel] {
                     Mode::Direct => self.ch_batch[a.channel][a.ch_idx * n23 + g],
                     Mode::Normal => {
                         let target = self.ch_target[a.channel][a.ch_idx];
-                        a.prev_raw_m
-                            + (target - a.prev_raw_m) * ((g + 1) * n23 / gens) as f64 / n23 as f64
+                        prev_raw + (target - prev_raw) * ((g + 1) * n23 / gens) as f64 / n23 as f64
                     }
                 };
             }
@@ -660,9 +761,10 @@ impl Machine {
                     a.buf_raw[g] = raw;
                     a.buf_comp[g] = comp;
                 } else {
+                    let prev_raw = a.seg.end_m();
                     for jj in 0..n23 {
                         let f = self.frac[jj];
-                        a.buf_raw[jj] = a.prev_raw_m + (raw - a.prev_raw_m) * f;
+                        a.buf_raw[jj] = prev_raw + (raw - prev_raw) * f;
                         a.buf_comp[jj] = a.prev_comp_m + (comp - a.prev_comp_m) * f;
                     }
                     a.buf_raw[n23 - 1] = raw;
@@ -671,14 +773,8 @@ impl Machine {
             }
             self.comp_prev.clone_from(&self.comp_cmd);
         }
-        let t2_s = self.t3_s * n23 as f64;
         for a in &mut self.axes {
-            // One acceleration per T2 segment: the command is (piecewise) linear inside it,
-            // so a per-T3 second difference would be a train of spikes.
-            let v = (a.buf_raw[n23 - 1] - a.prev_raw_m) / t2_s;
-            a.acc_cmd_mps2 = (v - a.seg_vel_mps) / t2_s;
-            a.seg_vel_mps = v;
-            a.prev_raw_m = a.buf_raw[n23 - 1];
+            a.seg.next_segment(a.buf_raw[n23 - 1]);
             a.prev_comp_m = a.buf_comp[n23 - 1];
         }
     }
@@ -700,7 +796,11 @@ impl Machine {
             // A measuring cycle (touch probe on the reference point) reads the real
             // displacement there; only the plant knows it.
             if let Some((axis, x_m)) = c.measurement_request() {
-                let real = self.axes[axis].plant.thermal.elongation_m(x_m);
+                let real = self.axes[axis]
+                    .axis_loop
+                    .plant()
+                    .thermal()
+                    .elongation_m(x_m);
                 c.measured(ctx.t_s, real);
             }
         }
@@ -715,36 +815,40 @@ impl Machine {
         // The row is the instant t_k at the start of the step just taken.
         tr.signals[0].data.push((self.k - 1) as f64 * self.t3_s);
         for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
-            let o = &a.sample_out;
+            let s = a.axis_loop.sample();
+            let o = &s.plant;
+            let fpt = a.axis_loop.force_per_torque();
             let vals = [
-                a.cmd_raw_m * 1e3,
-                a.cmd_m * 1e3,
-                (a.cmd_m - a.cmd_raw_m) * 1e3,
-                o.motor_pos_m * 1e3,
-                a.sample_pos_m * 1e3,
-                (a.cmd_raw_m - a.sample_pos_m) * 1e3,
-                a.servo.ferr_m * 1e3,
-                o.vel_mps * 1e3,
-                a.torque_cmd_nm(),
-                a.torque_nm(),
-                a.servo.force_n,
+                m_to_mm(s.cmd_raw_m),
+                m_to_mm(s.cmd_m),
+                m_to_mm(s.cmd_nc_m - s.cmd_raw_m),
+                m_to_mm(o.motor_pos_m),
+                m_to_mm(a.sample_pos_m),
+                m_to_mm(s.cmd_raw_m - a.sample_pos_m),
+                m_to_mm(s.servo.ferr_m),
+                m_to_mm(o.vel_mps),
+                s.servo.force_cmd_n / fpt,
+                s.servo.force_n / fpt,
+                s.servo.force_n,
                 o.friction_n,
-                o.gap_m * 1e3,
-                o.thermal_m * 1e3,
-                o.lead_err_m * 1e3,
-                (a.sample_pos_m - o.pos_m) * 1e3,
+                m_to_mm(o.gap_m),
+                m_to_mm(o.thermal_m),
+                m_to_mm(o.lead_err_m),
+                m_to_mm(a.sample_pos_m - o.pos_m),
             ];
             for (i, v) in vals.into_iter().enumerate() {
                 tr.signals[base + i].data.push(v);
             }
         }
         for (a, &c) in self.axes.iter().zip(&rec.temp_cols) {
-            tr.signals[c].data.push(a.plant.thermal.temp_c);
+            tr.signals[c]
+                .data
+                .push(a.axis_loop.plant().thermal().temp_c);
         }
         let amb = self
             .axes
             .first()
-            .map_or(20.0, |a| a.plant.thermal.ambient_c);
+            .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
         tr.signals[rec.ambient_col].data.push(amb);
         for (ch, &c) in self.channels.iter().zip(&rec.mode_cols) {
             tr.signals[c].data.push(ch.mode.as_f64());
@@ -757,7 +861,11 @@ impl Machine {
                 .position
                 .iter()
                 .map(|c| c as &dyn CompValues)
-                .chain(self.comps.servo.iter().map(|c| c as &dyn CompValues));
+                .chain(
+                    self.axes
+                        .iter()
+                        .flat_map(|a| a.axis_loop.comps().iter().map(|c| c as &dyn CompValues)),
+                );
             for (c, &n) in comps.zip(counts) {
                 c.vals(&mut rec.comp_vals[at..at + n]);
                 at += n;
@@ -766,6 +874,79 @@ impl Machine {
                 tr.signals[col].data.push(v);
             }
         }
+    }
+}
+
+/// The NC channels, one per program, with their programs parsed and compiled.
+fn build_channels(
+    preset: &Preset,
+    programs: &[(String, String)],
+    n12: u32,
+    n23: u32,
+) -> Result<Vec<Channel>, MachineError> {
+    let t = &preset.timing;
+    let mut channels = Vec::new();
+    for (ci, (file, text)) in programs.iter().enumerate() {
+        let ch_axes: Vec<&crate::preset::AxisParams> =
+            preset.axes.iter().filter(|a| a.channel == ci).collect();
+        let letters: Vec<char> = ch_axes.iter().map(|a| a.letter).collect();
+        let start: Vec<f64> = ch_axes.iter().map(|a| mm_to_m(a.initial_pos_mm)).collect();
+        let blocks = program::parse(text, file)?;
+        let ops = program::compile(
+            &blocks,
+            &letters,
+            &start,
+            preset.nc.default_feed_mm_per_min,
+            preset.nc.rapid_mm_per_min,
+            file,
+        )?;
+        channels.push(Channel::new(
+            ops,
+            &start,
+            preset.nc.initial_mode,
+            preset.nc.accdec.clone(),
+            crate::nc::ChannelTiming {
+                t1_s: t.t1_s,
+                t3_s: t.t3_s,
+                n12,
+                n23,
+            },
+        ));
+    }
+    Ok(channels)
+}
+
+/// One axis at rest at the raw command `x0_m`, its feedback sensor reading `x0_m`.
+fn new_axis(
+    preset: &Preset,
+    a: &crate::preset::AxisParams,
+    n23: usize,
+    x0_m: f64,
+    comps: Vec<Box<dyn ServoComp>>,
+) -> AxisRt {
+    let t3 = preset.timing.t3_s;
+    let ch_idx = preset
+        .axes
+        .iter()
+        .filter(|b| b.channel == a.channel)
+        .position(|b| b.name == a.name)
+        .unwrap_or(0);
+    let start = Start::at_rest(a.servo.feedback.into(), x0_m);
+    let axis_loop = AxisLoop::new(a, t3, start, x0_m, x0_m, comps);
+    let pos = axis_loop.plant().out().pos_m;
+    AxisRt {
+        name: a.name.clone(),
+        channel: a.channel,
+        ch_idx,
+        axis_loop,
+        buf_raw: vec![x0_m; n23],
+        buf_comp: vec![x0_m; n23],
+        prev_comp_m: x0_m,
+        seg: SegmentAcc::new(preset.timing.t2_s, x0_m),
+        cmd_nc_m: x0_m,
+        sag_m: 0.0,
+        pos_m: pos,
+        sample_pos_m: pos,
     }
 }
 
@@ -780,7 +961,7 @@ impl CompValues for Box<dyn crate::comp::PositionComp> {
     }
 }
 
-impl CompValues for Box<dyn crate::comp::ServoComp> {
+impl CompValues for Box<dyn ServoComp> {
     fn vals(&self, out: &mut [f64]) {
         self.values(out);
     }

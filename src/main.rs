@@ -6,7 +6,7 @@ use clap::Parser;
 fn main() {
     let args = cli::Cli::parse();
     if let Err(e) = cli::run(args) {
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
+        eprintln!("error: {}", cli::error_text(&e));
+        std::process::exit(cli::exit_status(&e));
     }
 }

@@ -7,8 +7,9 @@
 //! screw's own frame (`x_t` is where the nut is along an ideal screw); thermal growth and lead
 //! error turn that into where the table really is.
 
-use crate::preset::{AxisParams, Coupling, Crossbeam};
-use crate::servo::{masses, plant_substeps};
+use crate::preset::rules::MAX_SUBSTEPS;
+use crate::preset::{AxisParams, Coupling, Crossbeam, Feedback, PosSource};
+use crate::units;
 
 const G_MPS2: f64 = 9.80665;
 /// Below this table speed a sign change is not counted as a reversal (creep noise).
@@ -30,9 +31,15 @@ pub struct FrictionModel {
 /// Per-body step constants of [`FrictionModel::step`].
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Body {
+    /// Step over mass: velocity change per force.
     pub h_over_m: f64,
+    /// Mass over step: the force that stops the body within one step, per velocity.
     pub m_over_h: f64,
+    /// 1/(1 + h·c/m): the implicit viscous step.
     pub visc_inv: f64,
+    /// h/m · 1/(1 + h·c/m): velocity change per kinetic friction force after the viscous
+    /// step.
+    pub kin_per_n: f64,
 }
 
 impl FrictionModel {
@@ -44,14 +51,20 @@ impl FrictionModel {
             viscous_n_s_per_m: f.viscous_n_s_per_m,
             stribeck: f.stribeck.enabled,
             static_n: f.stribeck.static_n,
-            stribeck_mps: f.stribeck.velocity_mm_per_s * 1e-3,
-            stribeck_inv_mps: 1.0 / (f.stribeck.velocity_mm_per_s * 1e-3),
+            stribeck_mps: units::mm_per_s_to_m_per_s(f.stribeck.velocity_mm_per_s),
+            stribeck_inv_mps: 1.0 / units::mm_per_s_to_m_per_s(f.stribeck.velocity_mm_per_s),
         }
     }
 
     /// Kinetic friction magnitude (without the viscous part) at speed |v|.
     #[inline]
-    fn kinetic_n(&self, speed_mps: f64, scale: f64) -> f64 {
+    fn kinetic_n(&self, speed_mps: f64, scale: f64, add_n: f64) -> f64 {
+        self.kinetic_scaled(speed_mps, scale) + add_n
+    }
+
+    /// The kinetic level without the stroke friction's addition.
+    #[inline(always)]
+    fn kinetic_scaled(&self, speed_mps: f64, scale: f64) -> f64 {
         if self.stribeck {
             let r = speed_mps * self.stribeck_inv_mps;
             // Past 6 characteristic velocities the Stribeck term is below 3e-16 of the step;
@@ -68,38 +81,54 @@ impl FrictionModel {
     /// Step constants for a body of mass `m_kg` and step `h_s`, so that the per-step update
     /// has no divisions (they dominate the latency of this serial chain).
     pub fn body(&self, m_kg: f64, h_s: f64) -> Body {
+        let visc_inv = 1.0 / (1.0 + h_s * self.viscous_n_s_per_m / m_kg);
         Body {
             h_over_m: h_s / m_kg,
             m_over_h: m_kg / h_s,
-            visc_inv: 1.0 / (1.0 + h_s * self.viscous_n_s_per_m / m_kg),
+            visc_inv,
+            kin_per_n: h_s / m_kg * visc_inv,
         }
     }
 
-    /// Advances the velocity of `body` by one step under `f_other_n` plus friction. Returns
-    /// (new velocity, friction force). If friction can bring the body to rest within the
-    /// step, it does so exactly (stick) and returns the force that took.
+    /// Advances the velocity of `body` by one step under the forces `f_known_n` (known a
+    /// step ahead: gravity, disturbance) plus `f_drive_n` (this step's drive or spring force)
+    /// plus friction. Returns (new velocity, friction force). If friction can bring the body
+    /// to rest within the step, it does so exactly (stick) and returns the force that took.
+    ///
+    /// The drive force arrives last in every period, so it enters last: everything else
+    /// (the known forces, the kinetic friction, which depends on the previous velocity) is
+    /// summed while the amplifier still computes.
     #[inline]
-    pub fn step(&self, body: &Body, v_mps: f64, f_other_n: f64, scale: f64) -> (f64, f64) {
-        let v_free = v_mps + body.h_over_m * f_other_n;
+    pub fn step(
+        &self,
+        body: &Body,
+        v_mps: f64,
+        f_known_n: f64,
+        f_drive_n: f64,
+        scale: f64,
+        add_n: f64,
+    ) -> (f64, f64) {
+        let v_ahead = v_mps + body.h_over_m * f_known_n;
+        let v_free = v_ahead + body.h_over_m * f_drive_n;
         if !self.enabled {
             return (v_free, 0.0);
         }
+        let fk = self.kinetic_n(v_mps.abs(), scale, add_n);
+        let kin = body.kin_per_n * fk;
         let f_stop = -body.m_over_h * v_free;
         let f_static = if self.stribeck {
             scale * self.static_n
         } else {
             scale * self.coulomb_n
-        };
+        } + add_n;
         if f_stop.abs() <= f_static {
             return (0.0, f_stop);
         }
-        let dir = v_free.signum();
-        let fk = self.kinetic_n(v_mps.abs(), scale);
-        let v_new = (v_free - dir * body.h_over_m * fk) * body.visc_inv;
-        if v_new * dir <= 0.0 {
+        let v_new = v_free * body.visc_inv - kin.copysign(v_free);
+        if v_new * v_free <= 0.0 {
             return (0.0, f_stop);
         }
-        (v_new, -dir * fk - self.viscous_n_s_per_m * v_new)
+        (v_new, -fk.copysign(v_free) - self.viscous_n_s_per_m * v_new)
     }
 }
 
@@ -110,6 +139,7 @@ pub struct StrokeFriction {
     pub enabled: bool,
     pitch_m: f64,
     rise_ratio: f64,
+    rise_n: f64,
     growth_strokes: f64,
     recovery_m: f64,
     /// Short-stroke level n.
@@ -122,6 +152,8 @@ pub struct StrokeFriction {
     last_rev_m: Option<f64>,
     /// Current friction multiplier.
     pub scale: f64,
+    /// Current friction added to the level, N.
+    pub add_n: f64,
 }
 
 impl StrokeFriction {
@@ -129,16 +161,18 @@ impl StrokeFriction {
         let s = &a.friction.stroke;
         StrokeFriction {
             enabled: s.enabled,
-            pitch_m: s.pitch_mm * 1e-3,
+            pitch_m: units::mm_to_m(s.pitch_mm),
             rise_ratio: s.rise_ratio,
+            rise_n: s.rise_n,
             growth_strokes: s.growth_strokes,
-            recovery_m: s.recovery_mm * 1e-3,
+            recovery_m: units::mm_to_m(s.recovery_mm),
             level: 0.0,
             decay: 1.0,
             beyond_done_m: 0.0,
             dir: 0.0,
             last_rev_m: None,
             scale: 1.0,
+            add_n: 0.0,
         }
     }
 
@@ -162,11 +196,7 @@ impl StrokeFriction {
                     self.level = 0.0;
                     self.decay = 1.0;
                 }
-                self.scale = if self.enabled {
-                    1.0 + self.rise_ratio * (1.0 - self.decay)
-                } else {
-                    1.0
-                };
+                self.refresh();
             }
         }
         if v_mps.abs() < REVERSAL_SPEED_MPS {
@@ -190,11 +220,19 @@ impl StrokeFriction {
 
     fn update_scale(&mut self) {
         self.decay = (-self.level / self.growth_strokes).exp();
-        self.scale = if self.enabled {
-            1.0 + self.rise_ratio * (1.0 - self.decay)
+        self.refresh();
+    }
+
+    /// The friction multiplier and addition for the current level.
+    fn refresh(&mut self) {
+        let (scale, add) = if self.enabled {
+            let g = 1.0 - self.decay;
+            (1.0 + self.rise_ratio * g, self.rise_n * g)
         } else {
-            1.0
+            (1.0, 0.0)
         };
+        self.scale = scale;
+        self.add_n = add;
     }
 }
 
@@ -225,7 +263,7 @@ impl ScrewThermal {
             motion_heat_w_s_per_m: t.motion_heat_w_s_per_m,
             ambient_c: t.ambient_c,
             reference_c: t.reference_c,
-            fixed_end_m: t.fixed_end_mm * 1e-3,
+            fixed_end_m: units::mm_to_m(t.fixed_end_mm),
             temp_c: t.initial_c,
         }
     }
@@ -251,6 +289,7 @@ impl ScrewThermal {
     }
 }
 
+/// Cyclic, cumulative and tabulated lead error.
 #[derive(Debug, Clone)]
 struct LeadErr {
     enabled: bool,
@@ -306,6 +345,82 @@ pub struct PlantOut {
     pub lead_err_m: f64,
 }
 
+/// The mechanical state of the drive: motor and table positions (screw frame, load travel)
+/// and velocities.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MechState {
+    /// Motor position as load travel, m.
+    pub x_m: f64,
+    /// Motor velocity as load travel, m/s.
+    pub v_m: f64,
+    /// Table (nut) position along an ideal screw, m.
+    pub x_t: f64,
+    /// Table velocity, m/s.
+    pub v_t: f64,
+}
+
+/// Which sensor a plant's starting position is given for: the plant starts at rest where
+/// that sensor reads the given value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sensor {
+    /// The motor encoder (semi-closed loop; the machine's power-up position).
+    MotorEncoder,
+    /// The true table position (screw frame + thermal growth + lead error).
+    Load,
+    /// The linear scale on the table.
+    Scale,
+}
+
+impl From<Feedback> for Sensor {
+    fn from(f: Feedback) -> Sensor {
+        match f {
+            Feedback::Motor => Sensor::MotorEncoder,
+            Feedback::Scale => Sensor::Scale,
+        }
+    }
+}
+
+impl From<PosSource> for Sensor {
+    fn from(p: PosSource) -> Sensor {
+        match p {
+            PosSource::Load => Sensor::Load,
+            PosSource::MotorEncoder => Sensor::MotorEncoder,
+            PosSource::Scale => Sensor::Scale,
+        }
+    }
+}
+
+/// Where and how a plant starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Start {
+    /// The sensor whose reading is given.
+    pub sensor: Sensor,
+    /// What that sensor reads at the start, m.
+    pub reading_m: f64,
+    /// Common velocity of motor and table at the start, m/s (0: at rest).
+    pub vel_mps: f64,
+}
+
+impl Start {
+    /// At rest where `sensor` reads `reading_m`.
+    pub fn at_rest(sensor: Sensor, reading_m: f64) -> Start {
+        Start {
+            sensor,
+            reading_m,
+            vel_mps: 0.0,
+        }
+    }
+}
+
+/// Number of plant sub-steps per T3 so that the coupling resonance is well resolved
+/// (validation refuses a coupling that needs more than [`MAX_SUBSTEPS`]).
+pub fn substeps(a: &AxisParams, t3_s: f64) -> u32 {
+    a.required_substeps(t3_s)
+        .clamp(1.0, f64::from(MAX_SUBSTEPS)) as u32
+}
+
+/// One feed axis's mechanics: motor, coupling/backlash, screw, table, friction, gravity,
+/// screw thermal growth, lead error and the encoders.
 #[derive(Debug, Clone)]
 pub struct AxisPlant {
     mech: Mech,
@@ -313,9 +428,9 @@ pub struct AxisPlant {
     m_t: f64,
     half_gap_m: f64,
     f_grav_n: f64,
-    pub friction: FrictionModel,
-    pub stroke: StrokeFriction,
-    pub thermal: ScrewThermal,
+    friction: FrictionModel,
+    stroke: StrokeFriction,
+    thermal: ScrewThermal,
     lead: LeadErr,
     /// Encoder quanta as (quantum, 1/quantum).
     motor_q_m: Option<(f64, f64)>,
@@ -326,17 +441,20 @@ pub struct AxisPlant {
     body_table: Body,
     motor_h_over_m: f64,
     t3_s: f64,
-    pub x_m: f64,
-    pub v_m: f64,
-    pub x_t: f64,
-    pub v_t: f64,
+    x_m: f64,
+    v_m: f64,
+    x_t: f64,
+    v_t: f64,
     /// +1/−1: which flank is in contact (RigidPlay); 0: inside the gap.
     contact: i8,
-    pub out: PlantOut,
+    out: PlantOut,
 }
 
 impl AxisPlant {
-    pub fn new(a: &AxisParams, t3_s: f64, initial_pos_m: f64) -> AxisPlant {
+    /// A plant at `start`: the load resting on the flank gravity pushes it onto, the screw at
+    /// its initial temperature.
+    pub fn new(a: &AxisParams, t3_s: f64, start: Start) -> AxisPlant {
+        let initial_pos_m = start.reading_m;
         let mut p = AxisPlant {
             mech: Mech::Rigid,
             m_m: 0.0,
@@ -370,22 +488,89 @@ impl AxisPlant {
             out: PlantOut::default(),
         };
         p.retune(a);
-        // Start with the load resting on the flank gravity pushes it onto.
         p.contact = if p.f_grav_n > 0.0 { -1 } else { 1 };
-        if p.half_gap_m > 0.0 {
-            p.x_t = p.x_m - p.contact as f64 * p.half_gap_m;
-        }
-        p.refresh_out(0.0);
+        p.place(start);
         p
+    }
+
+    /// Puts motor and table where `start.sensor` reads `start.reading_m`, both moving at
+    /// `start.vel_mps`. The table reading includes thermal growth and lead error, which
+    /// depend on where the table is, so it is solved for by a few fixed-point steps (the
+    /// errors are µm against metres: each step gains six digits).
+    fn place(&mut self, start: Start) {
+        let b2 = if self.mech == Mech::Rigid {
+            0.0
+        } else {
+            self.half_gap_m
+        };
+        let flank = self.contact as f64 * b2;
+        let x_t = match start.sensor {
+            Sensor::MotorEncoder => start.reading_m - flank,
+            Sensor::Load | Sensor::Scale => {
+                let mut x = start.reading_m;
+                for _ in 0..4 {
+                    x = start.reading_m - self.thermal.elongation_m(x) - self.lead.at(x);
+                }
+                x
+            }
+        };
+        self.x_t = x_t;
+        self.x_m = x_t + flank;
+        self.v_m = start.vel_mps;
+        self.v_t = start.vel_mps;
+        self.refresh_out(0.0);
+    }
+
+    /// The mechanical state.
+    pub fn mech_state(&self) -> MechState {
+        MechState {
+            x_m: self.x_m,
+            v_m: self.v_m,
+            x_t: self.x_t,
+            v_t: self.v_t,
+        }
+    }
+
+    /// Replaces the mechanical state (the linearisation perturbs it one entry at a time).
+    pub fn set_mech_state(&mut self, s: MechState) {
+        self.x_m = s.x_m;
+        self.v_m = s.v_m;
+        self.x_t = s.x_t;
+        self.v_t = s.v_t;
+        self.refresh_out(self.out.friction_n);
+    }
+
+    /// What the sensors and the trace see after the latest step.
+    pub fn out(&self) -> &PlantOut {
+        &self.out
+    }
+
+    /// The screw's thermal state.
+    pub fn thermal(&self) -> &ScrewThermal {
+        &self.thermal
+    }
+
+    /// The short-stroke friction state.
+    pub fn stroke(&self) -> &StrokeFriction {
+        &self.stroke
+    }
+
+    /// The slide friction model.
+    pub fn friction(&self) -> &FrictionModel {
+        &self.friction
+    }
+
+    /// Sub-steps the mechanics take per T3.
+    pub fn substeps(&self) -> u32 {
+        self.n_sub
     }
 
     /// Takes new parameters while keeping the physical state (live editing).
     pub fn retune(&mut self, a: &AxisParams) {
-        let (m_m, m_t) = masses(a);
-        self.m_m = m_m;
-        self.m_t = m_t;
+        self.m_m = a.drive.reflected_motor_mass_kg();
+        self.m_t = a.drive.table_mass_kg;
         self.half_gap_m = if a.lost_motion.enabled {
-            0.5 * a.lost_motion.width_um * 1e-6
+            0.5 * units::um_to_m(a.lost_motion.width_um)
         } else {
             0.0
         };
@@ -396,7 +581,7 @@ impl AxisPlant {
                 stiffness_n_per_um,
                 damping_n_s_per_m,
             } => Mech::TwoMass {
-                k_n_per_m: stiffness_n_per_um * 1e6,
+                k_n_per_m: units::n_per_um_to_n_per_m(stiffness_n_per_um),
                 c_n_s_per_m: damping_n_s_per_m,
             },
         };
@@ -425,19 +610,25 @@ impl AxisPlant {
         let l = &a.lead_error;
         self.lead = LeadErr {
             enabled: l.enabled,
-            amplitude_m: l.amplitude_um * 1e-6,
-            inv_period_per_m: 1.0 / (l.period_mm * 1e-3),
+            amplitude_m: units::um_to_m(l.amplitude_um),
+            inv_period_per_m: 1.0 / units::mm_to_m(l.period_mm),
             phase_turns: l.phase_deg / 360.0,
-            cumulative: l.cumulative_um_per_m * 1e-6,
-            table: l.table.iter().map(|&(x, e)| (x * 1e-3, e * 1e-6)).collect(),
+            cumulative: units::um_per_m_to_ratio(l.cumulative_um_per_m),
+            table: l
+                .table
+                .iter()
+                .map(|&(x, e)| (units::mm_to_m(x), units::um_to_m(e)))
+                .collect(),
         };
         let e = &a.encoder;
         let q = |q: f64| (q, 1.0 / q);
         self.motor_q_m = e
             .quantize_motor
-            .then(|| q(a.drive.lead_mm * 1e-3 / e.motor_counts_per_rev as f64));
-        self.scale_q_m = e.quantize_scale.then(|| q(e.scale_resolution_um * 1e-6));
-        self.n_sub = plant_substeps(a, self.t3_s);
+            .then(|| q(a.drive.lead_m() / e.motor_counts_per_rev as f64));
+        self.scale_q_m = e
+            .quantize_scale
+            .then(|| q(units::um_to_m(e.scale_resolution_um)));
+        self.n_sub = substeps(a, self.t3_s);
         self.h_s = self.t3_s / self.n_sub as f64;
         self.body_all = self.friction.body(self.m_m + self.m_t, self.h_s);
         self.body_table = self.friction.body(self.m_t, self.h_s);
@@ -448,28 +639,27 @@ impl AxisPlant {
         };
     }
 
-    /// Advances the mechanics by one T3 under the motor force `force_n` (load side).
+    /// Advances the mechanics by one T3 under the motor force `force_n` (load side) and an
+    /// external force `ext_n` on the table (a disturbance; 0 on the machine).
     #[inline]
-    pub fn step(&mut self, force_n: f64) {
+    pub fn step(&mut self, force_n: f64, ext_n: f64) {
         let h = self.h_s;
-        let scale = self.stroke.scale;
+        let (scale, add) = (self.stroke.scale, self.stroke.add_n);
+        let f_load = self.f_grav_n + ext_n;
         let mut fric = 0.0;
         for _ in 0..self.n_sub {
             fric = match self.mech {
                 Mech::Rigid => {
-                    let (v, f) = self.friction.step(
-                        &self.body_all,
-                        self.v_t,
-                        force_n + self.f_grav_n,
-                        scale,
-                    );
+                    let (v, f) =
+                        self.friction
+                            .step(&self.body_all, self.v_t, f_load, force_n, scale, add);
                     self.v_t = v;
                     self.v_m = v;
                     self.x_t += h * v;
                     self.x_m = self.x_t;
                     f
                 }
-                Mech::RigidPlay => self.step_play(force_n, h, scale),
+                Mech::RigidPlay => self.step_play(force_n, f_load, h, scale, add),
                 Mech::TwoMass {
                     k_n_per_m,
                     c_n_s_per_m,
@@ -484,7 +674,7 @@ impl AxisPlant {
                     self.v_m += self.motor_h_over_m * (force_n - f_s);
                     let (v, f) =
                         self.friction
-                            .step(&self.body_table, self.v_t, f_s + self.f_grav_n, scale);
+                            .step(&self.body_table, self.v_t, f_load, f_s, scale, add);
                     self.v_t = v;
                     self.x_m += h * self.v_m;
                     self.x_t += h * self.v_t;
@@ -499,15 +689,16 @@ impl AxisPlant {
     }
 
     /// Rigid drive with play: one body while a flank transmits force, two bodies in the gap,
-    /// an inelastic impact when the gap closes.
-    fn step_play(&mut self, force_n: f64, h: f64, scale: f64) -> f64 {
+    /// an inelastic impact when the gap closes. `f_load_n` acts on the table.
+    #[inline]
+    fn step_play(&mut self, force_n: f64, f_load_n: f64, h: f64, scale: f64, add: f64) -> f64 {
         let b2 = self.half_gap_m;
         if self.contact != 0 {
             let (v, f) =
                 self.friction
-                    .step(&self.body_all, self.v_t, force_n + self.f_grav_n, scale);
+                    .step(&self.body_all, self.v_t, f_load_n, force_n, scale, add);
             // Force the motor flank must exert on the table for it to share this motion.
-            let f_contact = self.m_t * (v - self.v_t) / h - self.f_grav_n - f;
+            let f_contact = self.body_table.m_over_h * (v - self.v_t) - f_load_n - f;
             if f_contact * self.contact as f64 >= 0.0 {
                 self.v_t = v;
                 self.v_m = v;
@@ -521,7 +712,7 @@ impl AxisPlant {
         self.x_m += h * self.v_m;
         let (v, f) = self
             .friction
-            .step(&self.body_table, self.v_t, self.f_grav_n, scale);
+            .step(&self.body_table, self.v_t, f_load_n, 0.0, scale, add);
         self.v_t = v;
         self.x_t += h * v;
         let gap = self.x_m - self.x_t;
@@ -566,10 +757,11 @@ impl AxisPlant {
     }
 }
 
+/// The reading of an encoder of quantum `q` (with 1/q) at `x`: the nearest count.
 #[inline]
 fn quantize(x: f64, q: Option<(f64, f64)>) -> f64 {
     match q {
-        Some((q, inv)) => f64::floor(x * inv + 0.5) * q,
+        Some((q, inv)) => (x * inv).round_ties_even() * q,
         None => x,
     }
 }
@@ -647,8 +839,8 @@ impl Beam {
             })
             .collect();
         Some(Beam {
-            span_m: cb.span_mm * 1e-3,
-            ei_nm2: cb.youngs_modulus_gpa * 1e9 * cb.area_moment_cm4 * 1e-8,
+            span_m: units::mm_to_m(cb.span_mm),
+            ei_nm2: units::gpa_to_pa(cb.youngs_modulus_gpa) * units::cm4_to_m4(cb.area_moment_cm4),
             w_n_per_m: cb.self_weight_n_per_m,
             posts,
         })

@@ -1,36 +1,90 @@
-//! The servo amplifier, run once per internal control period T3.
+//! The servo amplifier's control law, run once per internal control period T3.
 //!
 //! Cascade: position P loop (+ velocity feed-forward) → velocity PI loop (+ torque
-//! feed-forward slot) → torque limit → current loop as a first-order lag. Velocity feedback
-//! always comes from the motor encoder; position feedback from the motor encoder
-//! (semi-closed) or the linear scale (closed loop). Gains are load-side: force per velocity,
-//! so the numbers do not change with the screw lead.
+//! feed-forward) → torque limit → current loop as a first-order lag. Gains are load-side
+//! (force per velocity), so the numbers do not change with the screw lead.
+//!
+//! This module is only the control law: it reads feedback and commands and returns a force.
+//! Which sensor feeds it, the mechanics it drives and the order of the two live in
+//! [`crate::drive::AxisLoop`], the one place an axis's T3 step is written.
 
-use nalgebra::DMatrix;
+use crate::preset::{AxisParams, Feedback};
 
-use crate::preset::{AxisParams, Coupling, Feedback};
-
-#[derive(Debug, Clone)]
-pub struct Servo {
+/// The amplifier's constants, derived once from the preset (and again on a live edit).
+#[derive(Debug, Clone, Copy)]
+struct Gains {
     kp_per_s: f64,
     kv_n_s_per_m: f64,
-    ki_per_s: f64,
-    vff: f64,
+    /// kv·ki·T3: integrator increment per velocity error.
+    integ_gain_n_per_mps: f64,
+    /// kv + kv·ki·T3: the velocity error's whole effect on the force command this period.
+    kv_total_n_s_per_m: f64,
+    /// vff / T3: velocity feed-forward per commanded travel this period.
+    vff_per_s: f64,
     /// aff·M: feed-forward force per commanded acceleration.
     aff_mass_kg: f64,
+    /// Current-loop step factor 1 − e^(−T3/τ), and 1 minus it.
     cur_alpha: f64,
+    cur_keep: f64,
+    /// kp + velocity scale: the velocity error's dependence on the encoder when the position
+    /// loop closes on the motor encoder too (one sensor, one product).
+    k_enc_per_s: f64,
+    /// The force command's dependence on the encoder then: (kv + kv·ki·T3)·(kp + vs).
+    kv_k_enc_n_per_m: f64,
     force_limit_n: f64,
-    t3_s: f64,
-    inv_t3: f64,
+    /// 1/T3 or 1/(2·T3): velocity from the encoder difference.
+    vel_scale_per_s: f64,
     avg2: bool,
-    pub feedback: Feedback,
+}
+
+impl Gains {
+    fn new(a: &AxisParams, t3_s: f64) -> Gains {
+        let s = &a.servo;
+        let integ = s.kv_n_s_per_m * s.ki_per_s * t3_s;
+        Gains {
+            kp_per_s: s.kp_per_s,
+            kv_n_s_per_m: s.kv_n_s_per_m,
+            integ_gain_n_per_mps: integ,
+            kv_total_n_s_per_m: s.kv_n_s_per_m + integ,
+            vff_per_s: s.vff / t3_s,
+            aff_mass_kg: s.aff * a.drive.total_mass_kg(),
+            cur_alpha: current_alpha(s.current_lag_s, t3_s),
+            cur_keep: 1.0 - current_alpha(s.current_lag_s, t3_s),
+            k_enc_per_s: s.kp_per_s
+                + if s.vel_filter_avg2 {
+                    0.5 / t3_s
+                } else {
+                    1.0 / t3_s
+                },
+            force_limit_n: s.torque_limit_nm * a.drive.force_per_torque(),
+            vel_scale_per_s: if s.vel_filter_avg2 {
+                0.5 / t3_s
+            } else {
+                1.0 / t3_s
+            },
+            avg2: s.vel_filter_avg2,
+            kv_k_enc_n_per_m: 0.0,
+        }
+        .with_products()
+    }
+
+    fn with_products(mut self) -> Gains {
+        self.kv_k_enc_n_per_m = self.kv_total_n_s_per_m * self.k_enc_per_s;
+        self
+    }
+}
+
+/// Everything the amplifier remembers from one period to the next.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ServoState {
+    /// Velocity-loop integrator, N.
     pub integ_n: f64,
-    pub force_cmd_n: f64,
+    /// Current-loop output: the force the motor really produces, N.
     pub force_n: f64,
-    pub vel_fb_mps: f64,
-    pub ferr_m: f64,
-    prev_cmd_m: f64,
-    motor_hist_m: [f64; 2],
+    /// The previous feed-forward command, m.
+    pub prev_ff_cmd_m: f64,
+    /// The last two motor-encoder readings (newest first), m.
+    pub motor_hist_m: [f64; 2],
 }
 
 /// What the amplifier reads in one T3 period.
@@ -53,88 +107,140 @@ pub struct ServoInput {
     pub acc_cmd_mps2: f64,
 }
 
-/// Converts between motor torque and load-side force for a screw of this lead.
-pub fn force_per_torque(lead_m: f64) -> f64 {
-    2.0 * std::f64::consts::PI / lead_m
+/// What the amplifier did in one period, for the trace.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ServoOutput {
+    /// Force command after the limit, before the current loop, N.
+    pub force_cmd_n: f64,
+    /// Force the current loop delivers this period, N.
+    pub force_n: f64,
+    /// Position-loop error (command − feedback), m.
+    pub ferr_m: f64,
+    /// Velocity feedback, m/s.
+    pub vel_fb_mps: f64,
+}
+
+/// One axis's amplifier.
+#[derive(Debug, Clone)]
+pub struct Servo {
+    g: Gains,
+    t3_s: f64,
+    /// Which sensor closes the position loop.
+    feedback: Feedback,
+    state: ServoState,
+    out: ServoOutput,
 }
 
 impl Servo {
-    pub fn new(a: &AxisParams, t3_s: f64, initial_pos_m: f64) -> Servo {
-        let s = &a.servo;
-        let lead_m = a.drive.lead_mm * 1e-3;
+    /// An amplifier at rest: integrator and current zero, the encoder history at
+    /// `motor_enc_m` and the feed-forward command at `ff_cmd_m`, so that the first period
+    /// sees no velocity.
+    pub fn new(a: &AxisParams, t3_s: f64, ff_cmd_m: f64, motor_enc_m: f64) -> Servo {
         Servo {
-            kp_per_s: s.kp_per_s,
-            kv_n_s_per_m: s.kv_n_s_per_m,
-            ki_per_s: s.ki_per_s,
-            vff: s.vff,
-            aff_mass_kg: {
-                let (m_m, m_t) = masses(a);
-                s.aff * (m_m + m_t)
-            },
-            cur_alpha: current_alpha(s.current_lag_s, t3_s),
-            force_limit_n: s.torque_limit_nm * force_per_torque(lead_m),
+            g: Gains::new(a, t3_s),
             t3_s,
-            inv_t3: 1.0 / t3_s,
-            avg2: s.vel_filter_avg2,
-            feedback: s.feedback,
-            integ_n: 0.0,
-            force_cmd_n: 0.0,
-            force_n: 0.0,
-            vel_fb_mps: 0.0,
-            ferr_m: 0.0,
-            prev_cmd_m: initial_pos_m,
-            motor_hist_m: [initial_pos_m; 2],
+            feedback: a.servo.feedback,
+            state: ServoState {
+                integ_n: 0.0,
+                force_n: 0.0,
+                prev_ff_cmd_m: ff_cmd_m,
+                motor_hist_m: [motor_enc_m; 2],
+            },
+            out: ServoOutput::default(),
         }
     }
 
     /// Adopts new gains without resetting the loop state (live editing).
     pub fn retune(&mut self, a: &AxisParams) {
-        let fresh = Servo::new(a, self.t3_s, 0.0);
-        self.kp_per_s = fresh.kp_per_s;
-        self.kv_n_s_per_m = fresh.kv_n_s_per_m;
-        self.ki_per_s = fresh.ki_per_s;
-        self.vff = fresh.vff;
-        self.aff_mass_kg = fresh.aff_mass_kg;
-        self.cur_alpha = fresh.cur_alpha;
-        self.force_limit_n = fresh.force_limit_n;
-        self.avg2 = fresh.avg2;
-        self.feedback = fresh.feedback;
+        self.g = Gains::new(a, self.t3_s);
+        self.feedback = a.servo.feedback;
+    }
+
+    /// Which sensor closes the position loop.
+    pub fn feedback(&self) -> Feedback {
+        self.feedback
+    }
+
+    /// The loop state (for the linearisation in [`crate::drive`]).
+    pub fn state(&self) -> ServoState {
+        self.state
+    }
+
+    /// Replaces the loop state (the linearisation perturbs it one entry at a time).
+    pub fn set_state(&mut self, s: ServoState) {
+        self.state = s;
+    }
+
+    /// What the amplifier did in the latest period.
+    pub fn output(&self) -> &ServoOutput {
+        &self.out
     }
 
     /// One T3 period. Returns the actual (current-loop) force on the load side.
+    ///
+    /// The velocity error is ev = kp·(cmd − fb) + vel_ff − (enc − older)·vs. Everything but
+    /// this period's sensor readings is known a period ahead, so it is summed first and the
+    /// readings enter last: the feedback → force path, which every period of the loop waits
+    /// on, is one product and one sum long.
     #[inline]
     pub fn step(&mut self, inp: &ServoInput) -> f64 {
-        let t3 = self.t3_s;
-        let vel_fb = if self.avg2 {
-            (inp.motor_pos_m - self.motor_hist_m[1]) * (0.5 * self.inv_t3)
+        let g = &self.g;
+        let st = &mut self.state;
+        let older = if g.avg2 {
+            st.motor_hist_m[1]
         } else {
-            (inp.motor_pos_m - self.motor_hist_m[0]) * self.inv_t3
+            st.motor_hist_m[0]
         };
-        self.motor_hist_m = [inp.motor_pos_m, self.motor_hist_m[0]];
-        let vel_ff = self.vff * (inp.ff_cmd_m - self.prev_cmd_m) * self.inv_t3;
-        self.prev_cmd_m = inp.ff_cmd_m;
-        self.ferr_m = inp.cmd_m - inp.fb_pos_m;
-        let vel_cmd = self.kp_per_s * self.ferr_m + vel_ff + inp.vel_add_mps;
-        let ev = vel_cmd - vel_fb;
-        self.vel_fb_mps = vel_fb;
-        let integ_new = self.integ_n + self.kv_n_s_per_m * self.ki_per_s * ev * t3;
-        let raw = self.kv_n_s_per_m * ev
-            + integ_new
-            + inp.force_ff_n
-            + self.aff_mass_kg * inp.acc_cmd_mps2;
-        let lim = self.force_limit_n;
+        let enc = inp.motor_pos_m;
+        st.motor_hist_m = [enc, st.motor_hist_m[0]];
+        let vel_ff = g.vff_per_s * (inp.ff_cmd_m - st.prev_ff_cmd_m);
+        st.prev_ff_cmd_m = inp.ff_cmd_m;
+        let ahead =
+            g.kp_per_s * inp.cmd_m + (g.vel_scale_per_s * older + (vel_ff + inp.vel_add_mps));
+        let base_n = g.aff_mass_kg * inp.acc_cmd_mps2 + (st.integ_n + inp.force_ff_n);
+        let early_n = g.kv_total_n_s_per_m * ahead + base_n;
+        let (ev, raw) = if self.feedback == Feedback::Motor {
+            (
+                ahead - g.k_enc_per_s * enc,
+                early_n - g.kv_k_enc_n_per_m * enc,
+            )
+        } else {
+            let from_sensors = g.kp_per_s * inp.fb_pos_m + g.vel_scale_per_s * enc;
+            (
+                ahead - from_sensors,
+                early_n - g.kv_total_n_s_per_m * from_sensors,
+            )
+        };
+        let integ_new = st.integ_n + g.integ_gain_n_per_mps * ev;
+        let lim = g.force_limit_n;
         let clamped = raw.clamp(-lim, lim);
         // Conditional integration: hold the integrator while the output is saturated in the
         // direction the integrator is pushing, so it does not wind up.
         if clamped == raw
-            || (raw > lim && integ_new < self.integ_n)
-            || (raw < -lim && integ_new > self.integ_n)
+            || (raw > lim && integ_new < st.integ_n)
+            || (raw < -lim && integ_new > st.integ_n)
         {
-            self.integ_n = integ_new;
+            st.integ_n = integ_new;
         }
-        self.force_cmd_n = clamped;
-        self.force_n += self.cur_alpha * (clamped - self.force_n);
-        self.force_n
+        st.force_n = g.cur_keep * st.force_n + g.cur_alpha * clamped;
+        self.out = ServoOutput {
+            force_cmd_n: clamped,
+            force_n: st.force_n,
+            ferr_m: inp.cmd_m - inp.fb_pos_m,
+            vel_fb_mps: (enc - older) * g.vel_scale_per_s,
+        };
+        st.force_n
+    }
+
+    /// The P-only velocity loop ignores its integrator; the linearisation leaves it out of
+    /// the spectrum so that a pole at exactly 1 does not read as unstable.
+    pub fn has_integrator(&self) -> bool {
+        self.g.integ_gain_n_per_mps > 0.0
+    }
+
+    /// kv, for the trace's velocity-loop figures.
+    pub fn kv_n_s_per_m(&self) -> f64 {
+        self.g.kv_n_s_per_m
     }
 }
 
@@ -144,122 +250,4 @@ fn current_alpha(lag_s: f64, t3_s: f64) -> f64 {
     } else {
         1.0
     }
-}
-
-/// Number of plant sub-steps per T3 so that the coupling resonance is well resolved.
-pub fn plant_substeps(a: &AxisParams, t3_s: f64) -> u32 {
-    match a.drive.coupling {
-        Coupling::Rigid => 1,
-        Coupling::TwoMass {
-            stiffness_n_per_um,
-            damping_n_s_per_m,
-        } => {
-            let (m_m, m_t) = masses(a);
-            let m_red = m_m * m_t / (m_m + m_t);
-            let omega = (stiffness_n_per_um * 1e6 / m_red).sqrt();
-            let by_k = (t3_s * omega / 0.3).ceil();
-            let by_c = (t3_s * damping_n_s_per_m / m_red / 0.5).ceil();
-            by_k.max(by_c).clamp(1.0, 64.0) as u32
-        }
-    }
-}
-
-/// Motor inertia reflected to the load side, and the table mass.
-pub fn masses(a: &AxisParams) -> (f64, f64) {
-    let lead_m = a.drive.lead_mm * 1e-3;
-    let fpt = force_per_torque(lead_m);
-    (
-        a.drive.motor_inertia_kgm2 * fpt * fpt,
-        a.drive.table_mass_kg,
-    )
-}
-
-/// Builds the closed-loop transition matrix of one T3 period for the linear part of the axis
-/// (no friction, backlash, quantization or limit) and checks that every pole is inside the
-/// unit circle. The matrix uses the same update order and sub-stepping as the simulation.
-pub fn check_stability(a: &AxisParams, t3_s: f64) -> Result<(), String> {
-    let m = closed_loop_matrix(a, t3_s);
-    let radius = m
-        .complex_eigenvalues()
-        .iter()
-        .map(|z| z.norm())
-        .fold(0.0_f64, f64::max);
-    if radius.is_finite() && radius < 1.0 - 1e-9 {
-        Ok(())
-    } else {
-        Err(format!(
-            "the discrete closed loop at T3 = {t3_s} s is unstable: largest pole |z| = {radius:.4} ≥ 1 \
-             (lower kp_per_s / kv_n_s_per_m / ki_per_s, or shorten T3)"
-        ))
-    }
-}
-
-/// State: [x_m, v_m, x_t, v_t, integ, force, motor_prev, motor_prev2], each scaled to a
-/// displacement per T3 (velocities by T3, forces by T3²/M). The scaling is a similarity
-/// transform, so the poles are unchanged, but it keeps the entries within a few decades of
-/// each other: unscaled, forces of 1e6 N against positions of 1 m make the eigen-solver
-/// report poles outside the unit circle for loops that are stable.
-pub fn closed_loop_matrix(a: &AxisParams, t3_s: f64) -> DMatrix<f64> {
-    const N: usize = 8;
-    let s = &a.servo;
-    let (m_m, m_t) = masses(a);
-    let alpha = current_alpha(s.current_lag_s, t3_s);
-    let n_sub = plant_substeps(a, t3_s);
-    let h = t3_s / n_sub as f64;
-    let step = |x: &[f64; N]| -> [f64; N] {
-        let [mut xm, mut vm, mut xt, mut vt, integ, force, prev, prev2] = *x;
-        let vel_fb = if s.vel_filter_avg2 {
-            (xm - prev2) / (2.0 * t3_s)
-        } else {
-            (xm - prev) / t3_s
-        };
-        let fb = match s.feedback {
-            Feedback::Motor => xm,
-            Feedback::Scale => xt,
-        };
-        let ev = s.kp_per_s * (0.0 - fb) - vel_fb;
-        // With ki = 0 the integrator is not part of the loop; keep it out of the spectrum.
-        let integ2 = if s.ki_per_s > 0.0 {
-            integ + s.kv_n_s_per_m * s.ki_per_s * ev * t3_s
-        } else {
-            0.0
-        };
-        let fcmd = s.kv_n_s_per_m * ev + integ2;
-        let force2 = force + alpha * (fcmd - force);
-        let (new_prev, new_prev2) = (xm, prev);
-        match a.drive.coupling {
-            Coupling::Rigid => {
-                vm += h * force2 / (m_m + m_t) * n_sub as f64;
-                xm += t3_s * vm;
-                xt = xm;
-                vt = vm;
-            }
-            Coupling::TwoMass {
-                stiffness_n_per_um,
-                damping_n_s_per_m,
-            } => {
-                let k = stiffness_n_per_um * 1e6;
-                for _ in 0..n_sub {
-                    let fs = k * (xm - xt) + damping_n_s_per_m * (vm - vt);
-                    vm += h * (force2 - fs) / m_m;
-                    vt += h * fs / m_t;
-                    xm += h * vm;
-                    xt += h * vt;
-                }
-            }
-        }
-        [xm, vm, xt, vt, integ2, force2, new_prev, new_prev2]
-    };
-    let f_scale = (m_m + m_t) / (t3_s * t3_s);
-    let scale = [1.0, 1.0 / t3_s, 1.0, 1.0 / t3_s, f_scale, f_scale, 1.0, 1.0];
-    let mut mat = DMatrix::<f64>::zeros(N, N);
-    for j in 0..N {
-        let mut e = [0.0; N];
-        e[j] = scale[j];
-        let col = step(&e);
-        for i in 0..N {
-            mat[(i, j)] = col[i] / scale[i];
-        }
-    }
-    mat
 }

@@ -5,69 +5,393 @@
 //! A, degC), whatever unit the file used, so that code comparing a simulated and a measured
 //! trace never converts. A missing sample ("not measured at this instant", an empty cell)
 //! is held as NaN and written back as an empty cell; NaN never comes from a file.
+//!
+//! Reading checks what the format promises: a unit that measures what its signal means
+//! ([`expected_quantities`]), finite numbers, and time stamps that increase without a wild
+//! jump ([`JUMP_FACTOR`], [`JUMP_MIN_S`]). Every bad row is counted and the first
+//! [`MAX_REPORTED_ERRORS`] are reported in one [`TraceError::Rows`]. The reader streams: it
+//! holds one row at a time besides the signals, a line is at most [`MAX_LINE_BYTES`], and a
+//! trace at most [`MAX_TRACE_ROWS`] rows and [`MAX_TRACE_VALUES`] values, so no file makes it
+//! allocate beyond about 1 GB.
 
 use std::io::Write;
 use std::path::Path;
 
+use crate::units;
+
+mod read;
+
+/// Most data rows a trace may have: 20 M rows are 5.5 h at 1 kHz, 42 min at 8 kHz.
+pub const MAX_TRACE_ROWS: usize = 20_000_000;
+/// Most values (rows × stored signals) a trace may hold: 100 M f64 are 800 MB, about 1 GB
+/// with the reader's growth slack (a quarter), so a trace fits well under 2 GB.
+pub const MAX_TRACE_VALUES: usize = 100_000_000;
+/// Longest line (metadata, header or row) the reader takes, bytes.
+pub const MAX_LINE_BYTES: usize = 1024 * 1024;
+/// Most `#` metadata lines before the header.
+pub const MAX_META_LINES: usize = 10_000;
+/// Row errors carried by one [`TraceError::Rows`]; the rest are counted. Keeps a file with a
+/// million bad rows from printing megabytes.
+pub const MAX_REPORTED_ERRORS: usize = 20;
+/// A time step is a jump (an error) when it is more than this many times the record's median
+/// spacing …
+pub const JUMP_FACTOR: f64 = 1000.0;
+/// … and more than this, s. A logger pausing a few ms, or a 10 Hz record with a 2 s gap, is
+/// not refused; a time stamp of 1e17 s in a 1 kHz record is.
+pub const JUMP_MIN_S: f64 = 1.0;
+
+/// Budget of the rendered text of [`TraceError::Rows`], bytes.
+const DISPLAY_BUDGET: usize = 3_600;
+/// Longest piece of file text quoted in a message, characters.
+const QUOTE_CHARS: usize = 40;
+
+/// Why a trace could not be read or written. Every variant names the file; row problems name
+/// the line (and the column, in the reason).
 #[derive(Debug, thiserror::Error)]
 pub enum TraceError {
+    /// The file could not be opened or read.
     #[error("{file}: cannot read: {source}")]
     Read {
+        /// The file.
         file: String,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// The file could not be written.
     #[error("{file}: cannot write: {source}")]
     Write {
+        /// The file.
         file: String,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// A problem at one line that stops reading (metadata, header, a line too long).
     #[error("{file}:{line}: {reason}")]
     At {
+        /// The file.
         file: String,
+        /// Line, from 1.
         line: u64,
+        /// What is wrong.
         reason: String,
     },
+    /// Problems in data rows (cells, time stamps): the first [`MAX_REPORTED_ERRORS`] in line
+    /// order, and how many more there were. Shown one per line, under 4,000 characters.
+    #[error("{}", render_rows(.file, .findings, *.omitted))]
+    Rows {
+        /// The file.
+        file: String,
+        /// The findings carried, in line order.
+        findings: Vec<Finding>,
+        /// Findings beyond those carried.
+        omitted: usize,
+    },
+    /// The columns do not make a trace (no time, no cmd/pos pair, a unit that does not fit).
     #[error("{file}: {reason}")]
-    Layout { file: String, reason: String },
+    Layout {
+        /// The file.
+        file: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The file is larger than a trace may be ([`MAX_TRACE_ROWS`], [`MAX_TRACE_VALUES`]).
+    #[error("{file}: {reason}")]
+    TooLarge {
+        /// The file.
+        file: String,
+        /// The estimate and the limit.
+        reason: String,
+    },
+    /// A mapping entry is malformed.
     #[error("mapping '{entry}': {reason}")]
-    Mapping { entry: String, reason: String },
+    Mapping {
+        /// The entry as written.
+        entry: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
+/// One problem in a data row.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Signal {
-    /// `t`, `mode`, `x.cmd`, `temp.x_screw`, …
-    pub name: String,
-    /// Canonical unit: mm, s, mm/s, N, N*m, A, degC, or "" for a plain number.
-    pub unit: String,
-    pub data: Vec<f64>,
+pub struct Finding {
+    /// Line in the file, from 1.
+    pub line: u64,
+    /// What is wrong, naming the column where there is one.
+    pub reason: String,
 }
 
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Trace {
-    /// `# key: value` metadata lines, in file order.
-    pub meta: Vec<(String, String)>,
-    /// Column 0 is always `t` in s.
-    pub signals: Vec<Signal>,
+fn render_rows(file: &str, findings: &[Finding], omitted: usize) -> String {
+    let file = quote(file, 80);
+    let mut out = String::new();
+    let mut shown = 0;
+    for f in findings {
+        let line = format!("{file}:{}: {}", f.line, quote(&f.reason, 240));
+        if shown > 0 && out.len() + line.len() + 1 > DISPLAY_BUDGET {
+            break;
+        }
+        if shown > 0 {
+            out.push('\n');
+        }
+        out.push_str(&line);
+        shown += 1;
+    }
+    let rest = findings.len() - shown + omitted;
+    if rest > 0 {
+        out.push_str(&format!(
+            "\n… and {rest} more rows in error ({} in all)",
+            findings.len() + omitted
+        ));
+    }
+    out
 }
 
-/// Maps an accepted unit to (canonical unit, factor to multiply by).
-pub fn canonical_unit(unit: &str) -> Option<(&'static str, f64)> {
-    Some(match unit {
-        "m" => ("mm", 1e3),
-        "mm" => ("mm", 1.0),
-        "um" => ("mm", 1e-3),
-        "s" => ("s", 1.0),
-        "ms" => ("s", 1e-3),
-        "m/s" => ("mm/s", 1e3),
-        "mm/s" => ("mm/s", 1.0),
-        "mm/min" => ("mm/s", 1.0 / 60.0),
-        "N" => ("N", 1.0),
-        "N*m" => ("N*m", 1.0),
-        "A" => ("A", 1.0),
-        "degC" => ("degC", 1.0),
-        "" => ("", 1.0),
-        _ => return None,
-    })
+/// `s`, cut to `max` characters with an ellipsis, for quoting file text in a message.
+fn quote(s: &str, max: usize) -> String {
+    match s.char_indices().nth(max) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_owned(),
+    }
+}
+
+/// What a unit measures. A signal's unit must measure what the signal means: `x.pos[mm/s]`
+/// is a velocity where a length is meant, and is refused rather than silently mis-scaled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quantity {
+    /// m, mm, um.
+    Length,
+    /// s, ms.
+    Time,
+    /// m/s, mm/s, mm/min.
+    Velocity,
+    /// N.
+    Force,
+    /// N*m.
+    Torque,
+    /// A.
+    Current,
+    /// degC.
+    Temperature,
+    /// No unit: counts, modes, ratios.
+    Plain,
+}
+
+impl Quantity {
+    /// The name used in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Quantity::Length => "a length",
+            Quantity::Time => "a time",
+            Quantity::Velocity => "a velocity",
+            Quantity::Force => "a force",
+            Quantity::Torque => "a torque",
+            Quantity::Current => "a current",
+            Quantity::Temperature => "a temperature",
+            Quantity::Plain => "a plain number",
+        }
+    }
+}
+
+/// An accepted unit: what it measures, the canonical unit a trace holds it in, and the
+/// conversion into that unit (a named helper from [`crate::units`], never a bare factor).
+#[derive(Debug, Clone, Copy)]
+pub struct Unit {
+    /// As written in a header, e.g. `mm/min`.
+    pub name: &'static str,
+    /// What it measures.
+    pub quantity: Quantity,
+    /// The unit held in memory, e.g. `mm/s`.
+    pub canonical: &'static str,
+    /// Value in this unit → value in the canonical unit.
+    pub to_canonical: fn(f64) -> f64,
+}
+
+fn same(v: f64) -> f64 {
+    v
+}
+
+/// Every unit TRACE_FORMAT accepts.
+pub const UNITS: &[Unit] = &[
+    Unit {
+        name: "m",
+        quantity: Quantity::Length,
+        canonical: "mm",
+        to_canonical: units::m_to_mm,
+    },
+    Unit {
+        name: "mm",
+        quantity: Quantity::Length,
+        canonical: "mm",
+        to_canonical: same,
+    },
+    Unit {
+        name: "um",
+        quantity: Quantity::Length,
+        canonical: "mm",
+        to_canonical: units::um_to_mm,
+    },
+    Unit {
+        name: "s",
+        quantity: Quantity::Time,
+        canonical: "s",
+        to_canonical: same,
+    },
+    Unit {
+        name: "ms",
+        quantity: Quantity::Time,
+        canonical: "s",
+        to_canonical: units::ms_to_s,
+    },
+    Unit {
+        name: "m/s",
+        quantity: Quantity::Velocity,
+        canonical: "mm/s",
+        to_canonical: units::m_per_s_to_mm_per_s,
+    },
+    Unit {
+        name: "mm/s",
+        quantity: Quantity::Velocity,
+        canonical: "mm/s",
+        to_canonical: same,
+    },
+    Unit {
+        name: "mm/min",
+        quantity: Quantity::Velocity,
+        canonical: "mm/s",
+        to_canonical: units::mm_per_min_to_mm_per_s,
+    },
+    Unit {
+        name: "N",
+        quantity: Quantity::Force,
+        canonical: "N",
+        to_canonical: same,
+    },
+    Unit {
+        name: "N*m",
+        quantity: Quantity::Torque,
+        canonical: "N*m",
+        to_canonical: same,
+    },
+    Unit {
+        name: "A",
+        quantity: Quantity::Current,
+        canonical: "A",
+        to_canonical: same,
+    },
+    Unit {
+        name: "degC",
+        quantity: Quantity::Temperature,
+        canonical: "degC",
+        to_canonical: same,
+    },
+    Unit {
+        name: "",
+        quantity: Quantity::Plain,
+        canonical: "",
+        to_canonical: same,
+    },
+];
+
+/// The accepted unit called `name`, if any.
+pub fn unit(name: &str) -> Option<&'static Unit> {
+    UNITS.iter().find(|u| u.name == name)
+}
+
+/// The units of one quantity, for messages: "m, mm, um".
+fn unit_names(q: Quantity) -> String {
+    UNITS
+        .iter()
+        .filter(|u| u.quantity == q)
+        .map(|u| if u.name.is_empty() { "none" } else { u.name })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The accepted units, for messages.
+fn all_unit_names() -> String {
+    UNITS
+        .iter()
+        .filter(|u| !u.name.is_empty())
+        .map(|u| u.name)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+use Quantity::{Current, Force, Length, Plain, Temperature, Time, Torque, Velocity};
+
+/// The known axis signals (`<axis>.<signal>`) and what their unit must measure. The
+/// quadrant compensation is injected as a torque, a velocity or a position, so it may be any
+/// of the three.
+const AXIS_SIGNALS: &[(&str, &[Quantity])] = &[
+    ("cmd", &[Length]),
+    ("cmd_comp", &[Length]),
+    ("comp", &[Length]),
+    ("motor_pos", &[Length]),
+    ("pos", &[Length]),
+    ("err", &[Length]),
+    ("ferr", &[Length]),
+    ("vel", &[Velocity]),
+    ("torque_cmd", &[Torque]),
+    ("torque", &[Torque]),
+    ("force", &[Force]),
+    ("friction", &[Force]),
+    ("gap", &[Length]),
+    ("thermal", &[Length]),
+    ("lead_err", &[Length]),
+    ("sag", &[Length]),
+    ("current", &[Current]),
+    ("backlash_comp", &[Length]),
+    ("quadrant_comp", &[Torque, Velocity, Length]),
+    ("thermal_comp", &[Length]),
+    ("cross_comp", &[Length]),
+    ("meas", &[Length]),
+];
+
+/// What the unit of signal `name` must measure: `t` a time, `mode` (and `mode.<channel>`)
+/// nothing, `temp.<name>` a temperature, `<axis>.<signal>` per the table of known axis
+/// signals. None for a signal this table does not know, which keeps any accepted unit.
+pub fn expected_quantities(name: &str) -> Option<&'static [Quantity]> {
+    if name == "t" {
+        return Some(&[Time]);
+    }
+    if name == "mode" || name.starts_with("mode.") {
+        return Some(&[Plain]);
+    }
+    if name.starts_with("temp.") {
+        return Some(&[Temperature]);
+    }
+    let (_, signal) = name.split_once('.')?;
+    AXIS_SIGNALS
+        .iter()
+        .find(|(s, _)| *s == signal)
+        .map(|(_, q)| *q)
+}
+
+/// Checks that unit `unit_name` is accepted and fits signal `name`; the reason when not.
+pub fn check_unit(name: &str, unit_name: &str) -> Result<&'static Unit, String> {
+    let u = unit(unit_name).ok_or_else(|| {
+        format!(
+            "unit '{}' is not accepted ({})",
+            quote(unit_name, QUOTE_CHARS),
+            all_unit_names()
+        )
+    })?;
+    match expected_quantities(name) {
+        Some(qs) if !qs.contains(&u.quantity) => {
+            let want: Vec<String> = qs
+                .iter()
+                .map(|q| format!("{} ({})", q.name(), unit_names(*q)))
+                .collect();
+            Err(format!(
+                "{} is {}, not {} ('{}')",
+                quote(name, QUOTE_CHARS),
+                want.join(" or "),
+                u.quantity.name(),
+                u.name
+            ))
+        }
+        _ => Ok(u),
+    }
 }
 
 /// Splits `x.cmd[mm]` into (`x.cmd`, `mm`); a name without brackets has unit "".
@@ -80,17 +404,41 @@ pub fn split_header(h: &str) -> Option<(&str, &str)> {
     }
 }
 
+/// One recorded signal: its samples in the canonical unit of its quantity.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Signal {
+    /// `t`, `mode`, `x.cmd`, `temp.x_screw`, …
+    pub name: String,
+    /// Canonical unit: mm, s, mm/s, N, N*m, A, degC, or "" for a plain number.
+    pub unit: String,
+    /// One value per row; NaN where the row did not measure it.
+    pub data: Vec<f64>,
+}
+
+/// A time series of one run, simulated or measured, with its metadata.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Trace {
+    /// `# key: value` metadata lines, in file order.
+    pub meta: Vec<(String, String)>,
+    /// Column 0 is always `t` in s.
+    pub signals: Vec<Signal>,
+}
+
 /// A column mapping for a foreign layout: `t[s]=t_s, x.cmd[m]=qg_m, x.force[N]=force_N*1`.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Mapping {
+    /// One entry per trace signal read.
     pub entries: Vec<MapEntry>,
 }
 
+/// One signal of a foreign layout: which source column, in which unit, times what.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MapEntry {
     /// Trace signal with the unit of the source column, e.g. `x.cmd[m]`.
     pub target: String,
+    /// The source column's header.
     pub source: String,
+    /// Factor applied to the source value before the unit conversion (e.g. N per V).
     #[serde(default = "unit_scale")]
     pub scale: f64,
 }
@@ -100,7 +448,8 @@ fn unit_scale() -> f64 {
 }
 
 impl Mapping {
-    /// Parses `target=source[*scale]` entries separated by commas or newlines.
+    /// Parses `target=source[*scale]` entries separated by commas or newlines. Each target's
+    /// unit must be accepted and fit its signal.
     pub fn parse(text: &str) -> Result<Mapping, TraceError> {
         let mut entries = Vec::new();
         for raw in text.split([',', '\n']) {
@@ -109,7 +458,7 @@ impl Mapping {
                 continue;
             }
             let bad = |reason: &str| TraceError::Mapping {
-                entry: e.to_owned(),
+                entry: quote(e, QUOTE_CHARS),
                 reason: reason.to_owned(),
             };
             let (target, src) = e
@@ -126,10 +475,9 @@ impl Mapping {
                 ),
                 None => (src.trim(), 1.0),
             };
-            let (_, unit) = split_header(target).ok_or_else(|| bad("target must be name[unit]"))?;
-            if canonical_unit(unit).is_none() {
-                return Err(bad(&format!("unit '{unit}' is not accepted")));
-            }
+            let (name, unit) =
+                split_header(target).ok_or_else(|| bad("target must be name[unit]"))?;
+            check_unit(name, unit).map_err(|r| bad(&r))?;
             entries.push(MapEntry {
                 target: target.trim().to_owned(),
                 source: source.to_owned(),
@@ -138,7 +486,7 @@ impl Mapping {
         }
         if entries.is_empty() {
             return Err(TraceError::Mapping {
-                entry: text.to_owned(),
+                entry: quote(text, QUOTE_CHARS),
                 reason: "no entries".into(),
             });
         }
@@ -147,6 +495,7 @@ impl Mapping {
 }
 
 impl Trace {
+    /// An empty trace with only its time column, ready for [`Trace::add_signal`].
     pub fn new() -> Trace {
         Trace {
             meta: vec![],
@@ -168,26 +517,32 @@ impl Trace {
         self.signals.len() - 1
     }
 
+    /// Number of rows (samples of `t`).
     pub fn len(&self) -> usize {
         self.signals.first().map_or(0, |s| s.data.len())
     }
 
+    /// True without rows.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
+    /// The time column, s.
     pub fn t(&self) -> &[f64] {
         self.signals.first().map_or(&[], |s| &s.data)
     }
 
+    /// The signal called `name` (without unit), if recorded.
     pub fn signal(&self, name: &str) -> Option<&Signal> {
         self.signals.iter().find(|s| s.name == name)
     }
 
+    /// The samples of signal `name`, in its canonical unit.
     pub fn values(&self, name: &str) -> Option<&[f64]> {
         self.signal(name).map(|s| s.data.as_slice())
     }
 
+    /// The value of metadata `key`, if the file had it.
     pub fn meta(&self, key: &str) -> Option<&str> {
         self.meta
             .iter()
@@ -212,6 +567,8 @@ impl Trace {
         }
     }
 
+    /// Writes the trace as TRACE_FORMAT CSV: metadata lines, header, one row per sample,
+    /// shortest round-trip numbers, missing samples as empty cells.
     pub fn write_csv_to<W: Write>(&self, mut w: W) -> std::io::Result<()> {
         for (k, v) in &self.meta {
             writeln!(w, "# {k}: {v}")?;
@@ -247,172 +604,5 @@ impl Trace {
                 source,
             }
         })
-    }
-
-    pub fn read_csv(path: &Path, mapping: Option<&Mapping>) -> Result<Trace, TraceError> {
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| TraceError::Read {
-            file: file.clone(),
-            source,
-        })?;
-        Trace::from_csv_str(&text, &file, mapping)
-    }
-
-    /// Parses trace CSV text. `file` names the source in every error.
-    pub fn from_csv_str(
-        text: &str,
-        file: &str,
-        mapping: Option<&Mapping>,
-    ) -> Result<Trace, TraceError> {
-        let at = |line: u64, reason: String| TraceError::At {
-            file: file.to_owned(),
-            line,
-            reason,
-        };
-        let layout = |reason: String| TraceError::Layout {
-            file: file.to_owned(),
-            reason,
-        };
-        let mut meta = Vec::new();
-        let mut body_start = 0;
-        let mut meta_lines = 0u64;
-        for line in text.split_inclusive('\n') {
-            let l = line.trim();
-            if !l.starts_with('#') {
-                break;
-            }
-            if let Some((k, v)) = l.trim_start_matches('#').split_once(':') {
-                meta.push((k.trim().to_owned(), v.trim().to_owned()));
-            }
-            body_start += line.len();
-            meta_lines += 1;
-        }
-        let mut rdr = csv::ReaderBuilder::new()
-            .has_headers(true)
-            .trim(csv::Trim::All)
-            .from_reader(&text.as_bytes()[body_start..]);
-        let headers = rdr
-            .headers()
-            .map_err(|e| at(meta_lines + 1, format!("bad header row: {e}")))?
-            .clone();
-        // (source column index, signal name, canonical unit, factor)
-        let mut cols: Vec<(usize, String, &'static str, f64)> = Vec::new();
-        let find = |src: &str| headers.iter().position(|h| h == src);
-        match mapping {
-            Some(m) => {
-                for e in &m.entries {
-                    let idx = find(&e.source).ok_or_else(|| {
-                        layout(format!(
-                            "mapping needs column '{}', which is not in the header (columns: {})",
-                            e.source,
-                            headers.iter().collect::<Vec<_>>().join(", ")
-                        ))
-                    })?;
-                    let (name, unit) = split_header(&e.target).ok_or_else(|| {
-                        layout(format!("mapping target '{}' must be name[unit]", e.target))
-                    })?;
-                    let (cu, f) = canonical_unit(unit)
-                        .ok_or_else(|| layout(format!("unit '{unit}' is not accepted")))?;
-                    cols.push((idx, name.to_owned(), cu, f * e.scale));
-                }
-            }
-            None => {
-                for (idx, h) in headers.iter().enumerate() {
-                    let (name, unit) = split_header(h).ok_or_else(|| {
-                        layout(format!(
-                            "column {} header '{h}' is not signal[unit]",
-                            idx + 1
-                        ))
-                    })?;
-                    let (cu, f) = canonical_unit(unit).ok_or_else(|| {
-                        layout(format!(
-                            "column '{h}': unit '{unit}' is not accepted (m, mm, um, s, ms, m/s, mm/s, mm/min, N, N*m, A, degC)"
-                        ))
-                    })?;
-                    cols.push((idx, name.to_owned(), cu, f));
-                }
-            }
-        }
-        for (i, c) in cols.iter().enumerate() {
-            if cols[..i].iter().any(|d| d.1 == c.1) {
-                return Err(layout(format!("signal '{}' appears twice", c.1)));
-            }
-        }
-        let t_pos = cols
-            .iter()
-            .position(|c| c.1 == "t")
-            .ok_or_else(|| layout("no time column t[s]".into()))?;
-        if cols[t_pos].2 != "s" {
-            return Err(layout("column t must be a time (s or ms)".into()));
-        }
-        cols.swap(0, t_pos);
-        let mut signals: Vec<Signal> = cols
-            .iter()
-            .map(|c| Signal {
-                name: c.1.clone(),
-                unit: c.2.to_owned(),
-                data: Vec::new(),
-            })
-            .collect();
-        let mut rec = csv::StringRecord::new();
-        let mut last_t = f64::NEG_INFINITY;
-        loop {
-            let more = rdr.read_record(&mut rec).map_err(|e| {
-                let line = e.position().map_or(0, |p| p.line()) + meta_lines;
-                at(line, format!("bad row: {e}"))
-            })?;
-            if !more {
-                break;
-            }
-            let line = rec.position().map_or(0, |p| p.line()) + meta_lines;
-            for (k, c) in cols.iter().enumerate() {
-                let cell = rec.get(c.0).unwrap_or("");
-                let v = if cell.is_empty() {
-                    if k == 0 {
-                        return Err(at(line, "time t is empty".into()));
-                    }
-                    f64::NAN
-                } else {
-                    let v: f64 = cell.parse().map_err(|_| {
-                        at(
-                            line,
-                            format!(
-                                "column '{}': '{cell}' is not a number",
-                                headers.get(c.0).unwrap_or("")
-                            ),
-                        )
-                    })?;
-                    if !v.is_finite() {
-                        return Err(at(
-                            line,
-                            format!(
-                                "column '{}': '{cell}' is not a finite number",
-                                headers.get(c.0).unwrap_or("")
-                            ),
-                        ));
-                    }
-                    v * c.3
-                };
-                signals[k].data.push(v);
-            }
-            let t = signals[0].data[signals[0].data.len() - 1];
-            if t <= last_t {
-                return Err(at(
-                    line,
-                    format!("time {t} s does not increase (previous row {last_t} s)"),
-                ));
-            }
-            last_t = t;
-        }
-        let trace = Trace { meta, signals };
-        if trace.is_empty() {
-            return Err(layout("no data rows".into()));
-        }
-        if trace.axes().is_empty() {
-            return Err(layout(
-                "needs, for at least one axis, both <axis>.cmd and <axis>.pos columns".into(),
-            ));
-        }
-        Ok(trace)
     }
 }

@@ -41,10 +41,7 @@ fn load(preset: &axisbench::Preset, path: &str) -> Result<Record, String> {
     let p = PathBuf::from(path);
     let tr = diagnose::read_record(&p, preset, None).map_err(|e| e.to_string())?;
     let axis = diagnose::pick_axis(&tr, path, preset, None).map_err(|e| e.to_string())?;
-    let base =
-        diagnose::base_axis_of(preset, &axis).filter(|b| tr.signal(&format!("{b}.pos")).is_some());
-    Record::from_trace(&tr, path, &axis, base.as_deref(), preset.timing.t3_s)
-        .map_err(|e| e.to_string())
+    Record::for_preset(&tr, path, preset, &axis).map_err(|e| e.to_string())
 }
 
 impl Workbench {
@@ -162,6 +159,24 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     wb.poll_diagnosis();
     // Measured before the tables, which may ask for more width than the panel has.
     let full_w = ui.available_width();
+    records_ui(wb, ui);
+    run_row_ui(wb, ui);
+    if let Some(e) = &wb.diag.error {
+        ui.colored_label(egui::Color32::from_rgb(200, 40, 40), e);
+    }
+    let Some(rep) = &wb.diag.report else {
+        ui.label("Replays the measured command through this preset and ranks the unmodelled effects that explain the residual.");
+        return;
+    };
+    summary_ui(rep, ui);
+    tables_ui(rep, ui, full_w);
+    if let Some(s) = &rep.series {
+        plots_ui(rep, s, ui, full_w);
+    }
+}
+
+/// The measured and validation records, and the held-out share.
+fn records_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         let l = ui.label("Measured record");
         ui.add(egui::TextEdit::singleline(&mut wb.diag.trace_path).desired_width(320.0))
@@ -193,6 +208,10 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                 .suffix(" of the record"),
         );
     });
+}
+
+/// Run / progress / cancel, and "Apply to model".
+fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if let Some(job) = &wb.diag.job {
             let (f, what) = job
@@ -225,18 +244,29 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             wb.apply_diagnosis();
         }
     });
-    if let Some(e) = &wb.diag.error {
-        ui.colored_label(egui::Color32::from_rgb(200, 40, 40), e);
-    }
-    let Some(rep) = &wb.diag.report else {
-        ui.label("Replays the measured command through this preset and ranks the unmodelled effects that explain the residual.");
-        return;
-    };
+}
+
+/// The verdict line.
+fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
     ui.separator();
+    let c = &rep.calibration;
+    ui.label(format!(
+        "Calibration (nominal re-fitted first, within ±8 %): {}",
+        axisbench::diagnose::report::calibration_lines(&c.ratios).join(", ")
+    ));
+    if let Some(s) = &c.skew {
+        ui.colored_label(
+            egui::Color32::from_rgb(180, 110, 0),
+            format!(
+                "Measurement: the {:?} channel is logged {:+.2} samples off its time stamps (realigned before the effects)",
+                s.channel, s.samples
+            ),
+        );
+    }
     ui.horizontal(|ui| {
         ui.strong(format!("Verdict: {}", rep.verdict));
         if rep.verdict == "none" {
-            ui.label("(no significant unmodelled effect)");
+            ui.label("(no unmodelled effect beyond the calibration)");
         } else {
             ui.label(format!(
                 "added: {}   held-out residual {:.2} -> {:.2} um ({:.0} % shrink)",
@@ -247,6 +277,17 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             ));
         }
     });
+    for e in rep
+        .ranking
+        .iter()
+        .filter(|e| rep.selected.contains(&e.effect))
+    {
+        ui.label(format!("{}: {}", e.effect, e.evidence));
+    }
+}
+
+/// The candidate ranking and the per-regime residuals.
+fn tables_ui(rep: &Report, ui: &mut egui::Ui, full_w: f32) {
     ui.horizontal_top(|ui| {
         egui::ScrollArea::vertical()
             .id_salt("ranking")
@@ -259,6 +300,7 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                         ui.strong("effect");
                         ui.strong("shrink");
                         ui.strong("parameters");
+                        ui.strong("signature");
                         ui.end_row();
                         for e in &rep.ranking {
                             ui.label(&e.effect);
@@ -270,9 +312,12 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                             let p: Vec<String> = e
                                 .params
                                 .iter()
+                                .filter(|(k, _)| !k.starts_with("calibration_"))
                                 .map(|(k, v)| format!("{k}={v:.4}"))
                                 .collect();
                             ui.label(p.join(" "));
+                            let mark = if e.evidence_pass { "yes" } else { "no" };
+                            ui.label(mark).on_hover_text(&e.evidence);
                             ui.end_row();
                         }
                     });
@@ -292,7 +337,10 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             }
         });
     });
-    let Some(s) = &rep.series else { return };
+}
+
+/// Residual against time (regimes shaded), against position, and per time bin.
+fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, full_w: f32) {
     let h = ui.available_height();
     // Residual against time, regimes shaded behind it.
     let step = (s.t_s.len() / 4000).max(1);

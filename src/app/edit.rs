@@ -1,354 +1,373 @@
-//! The parameter sections: Backlash, Quadrant, Thermal, Cross, Servo, Plant. Every field
-//! shows its unit; a value is taken on Enter or when the field loses focus, validated like
-//! a preset file, and on error shown in red next to the field while the previous value stays
-//! in force.
+//! The parameter sections: Backlash, Quadrant, Thermal, Cross, Servo, Plant, NC.
+//!
+//! Each section is a lens — a closure from the preset to one of its structs — drawn by
+//! walking that struct's fields ([`axisbench::preset::Fields`]): the compiler checks the way
+//! from a widget to its field, and the unit and range shown come from the same list that
+//! validates files and `--set`. An edit is written into a copy of the preset, the copy is
+//! checked like a preset file, and only then does it replace the running one; on error the
+//! message stays next to the field (under the field's path) and the previous value stays in
+//! force.
 
-use axisbench::comp::measure;
+use std::collections::BTreeMap;
+
 use axisbench::comp::quadrant::Quadrant;
 use axisbench::comp::thermal::Thermal;
-use axisbench::preset::{AxisParams, Coupling};
+use axisbench::measure;
+use axisbench::preset::comp::Reversal;
+use axisbench::preset::fields::{Field, FieldsDyn, Num, TableSpec, Visitor, Walker, short};
+use axisbench::preset::{AxisParams, Preset};
+use axisbench::units::{m_to_mm, m_to_um, s_to_ms};
 use eframe::egui;
 
 use super::Workbench;
 
-/// The preset-file name of an enum value (`lump`, `two_mass`, …).
-fn snake(v: &impl serde::Serialize) -> String {
-    serde_json::to_value(v)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_owned))
-        .unwrap_or_default()
+/// A lens from the preset to one section (None when the section does not exist, e.g. an
+/// axis index past the end after a preset change).
+pub type Lens = dyn Fn(&mut Preset) -> Option<&mut dyn FieldsDyn>;
+
+/// Draws the fields of one section and records which one the user committed.
+struct Form<'a> {
+    ui: &'a mut egui::Ui,
+    /// Text being typed, by field path.
+    bufs: &'a mut BTreeMap<String, String>,
+    errors: &'a BTreeMap<String, String>,
+    /// The section's own path; sub-sections below it get a heading.
+    root: String,
+    heading: String,
+    /// The field edited this frame.
+    changed: Option<String>,
+    /// A typed value that does not parse: (path, message).
+    parse_error: Option<(String, String)>,
 }
 
-/// A numeric field bound to a preset path.
-fn num_ui(wb: &mut Workbench, ui: &mut egui::Ui, label: &str, unit: &str, path: &str, value: f64) {
-    ui.horizontal(|ui| {
-        let l = ui.label(label);
-        let buf = wb
-            .fields
-            .entry(path.to_owned())
-            .or_insert_with(|| format!("{value}"));
-        let r = ui
-            .add(egui::TextEdit::singleline(buf).desired_width(80.0))
-            .labelled_by(l.id);
-        ui.label(unit);
-        let commit =
-            r.lost_focus() || (r.has_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter)));
-        // Follow the model (a load, a wizard, an edit elsewhere) only while the user is not
-        // typing here and has no pending error to read.
-        if !commit
-            && !r.has_focus()
-            && !wb.field_errors.contains_key(path)
-            && *buf != format!("{value}")
+impl Form<'_> {
+    /// A heading when the walk enters a sub-section (a reversal direction, Stribeck, …).
+    fn heading(&mut self, path: &str) {
+        let parent = path.rsplit_once('.').map_or("", |(p, _)| p);
+        if parent == self.heading {
+            return;
+        }
+        self.heading = parent.to_owned();
+        if let Some(rest) = parent.strip_prefix(&self.root)
+            && let Some(sub) = rest.strip_prefix('.')
         {
-            *buf = format!("{value}");
+            let name = sub.rsplit('.').next().unwrap_or(sub);
+            let title = Reversal::from_name(name)
+                .map(|r| format!("{} reversal", r.arrow()))
+                .unwrap_or_else(|| name.replace('_', " "));
+            self.ui.label(egui::RichText::new(title).strong());
         }
-        if commit {
-            let text = buf.trim().to_owned();
-            let ok = match text.parse::<f64>() {
-                Ok(v) if v.is_finite() => wb.set(path, &text),
-                _ => {
-                    wb.field_errors
-                        .insert(path.to_owned(), format!("'{text}' is not a number"));
-                    false
+    }
+
+    fn error_ui(&mut self, path: &str) {
+        if let Some(e) = self.errors.get(path) {
+            self.ui.colored_label(egui::Color32::RED, e);
+        }
+    }
+
+    /// A text field committed on Enter or when it loses focus; returns the committed text.
+    fn text_ui(&mut self, path: &str, label: &str, unit: &str, shown: String) -> Option<String> {
+        let mut out = None;
+        let bufs = &mut *self.bufs;
+        let errors = self.errors;
+        self.ui.horizontal(|ui| {
+            let l = ui.label(label);
+            let buf = bufs.entry(path.to_owned()).or_insert_with(|| shown.clone());
+            let r = ui
+                .add(egui::TextEdit::singleline(buf).desired_width(90.0))
+                .labelled_by(l.id)
+                .on_hover_text(path);
+            ui.label(unit);
+            let commit =
+                r.lost_focus() || (r.has_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter)));
+            // Follow the model (a load, a wizard, an edit elsewhere) only while the user is
+            // not typing here and has no pending error to read.
+            if commit && *buf != shown {
+                out = Some(buf.trim().to_owned());
+            } else if !commit && !r.has_focus() && !errors.contains_key(path) && *buf != shown {
+                *buf = shown;
+            }
+        });
+        out
+    }
+
+    fn num_ui(&mut self, path: &str, label: &str, x: &mut f64, r: Num) {
+        if let Some(text) = self.text_ui(path, label, r.unit, short(*x)) {
+            match text.parse::<f64>() {
+                Ok(v) => {
+                    *x = v;
+                    self.changed = Some(path.to_owned());
                 }
-            };
-            if ok {
-                wb.fields.remove(path);
+                Err(_) => {
+                    self.parse_error = Some((
+                        path.to_owned(),
+                        format!("'{text}' is not a number (allowed: {})", r.describe()),
+                    ))
+                }
             }
         }
-        if let Some(e) = wb.field_errors.get(path) {
-            ui.colored_label(egui::Color32::RED, e);
-        }
-    });
-}
+        self.error_ui(path);
+    }
 
-fn bool_ui(wb: &mut Workbench, ui: &mut egui::Ui, label: &str, path: &str, value: bool) {
-    let mut v = value;
-    if ui.checkbox(&mut v, label).changed() {
-        wb.set(path, if v { "true" } else { "false" });
+    fn count_ui(&mut self, path: &str, label: &str, n: &mut u32) {
+        if let Some(text) = self.text_ui(path, label, "", n.to_string()) {
+            match text.parse::<u32>() {
+                Ok(v) => {
+                    *n = v;
+                    self.changed = Some(path.to_owned());
+                }
+                Err(_) => {
+                    self.parse_error =
+                        Some((path.to_owned(), format!("'{text}' is not a whole number")))
+                }
+            }
+        }
+        self.error_ui(path);
+    }
+
+    fn table_ui(&mut self, path: &str, label: &str, t: &mut Vec<(f64, f64)>, spec: TableSpec) {
+        let l = self.ui.label(format!(
+            "{label} ({}, {}), one point per line:",
+            spec.x.unit, spec.y.unit
+        ));
+        let key = format!("{path}#table");
+        let buf = self.bufs.entry(key.clone()).or_insert_with(|| {
+            t.iter()
+                .map(|(x, y)| format!("{}, {}", short(*x), short(*y)))
+                .collect::<Vec<_>>()
+                .join("\n")
+        });
+        self.ui
+            .add(egui::TextEdit::multiline(buf).desired_rows(4).code_editor())
+            .labelled_by(l.id);
+        let text = buf.clone();
+        if self.ui.button(format!("Apply {label}")).clicked() {
+            match parse_table(&text, spec.max_points) {
+                Ok(pts) => {
+                    *t = pts;
+                    self.bufs.remove(&key);
+                    self.changed = Some(path.to_owned());
+                }
+                Err(e) => self.parse_error = Some((path.to_owned(), e)),
+            }
+        }
+        self.error_ui(path);
     }
 }
 
-/// A choice among the snake_case names of an enum.
-fn choice_ui(
-    wb: &mut Workbench,
-    ui: &mut egui::Ui,
-    label: &str,
-    path: &str,
-    current: &str,
-    options: &[&str],
-) {
-    ui.horizontal(|ui| {
-        ui.label(label);
-        for o in options {
-            if ui.selectable_label(current == *o, *o).clicked() && current != *o {
-                wb.set(path, o);
+/// "x, y" lines to points; the error names the line.
+fn parse_table(text: &str, max_points: usize) -> Result<Vec<(f64, f64)>, String> {
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    if lines.len() > max_points {
+        return Err(format!(
+            "{} points; at most {max_points} are allowed",
+            lines.len()
+        ));
+    }
+    lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let mut it = l.split(',').map(|v| v.trim().parse::<f64>());
+            match (it.next(), it.next(), it.next()) {
+                (Some(Ok(x)), Some(Ok(y)), None) => Ok((x, y)),
+                _ => Err(format!("line {}: '{l}' is not two numbers 'x, y'", i + 1)),
             }
-        }
-    });
+        })
+        .collect()
 }
 
-/// A point table edited as "x, y" lines.
-fn table_ui(
-    wb: &mut Workbench,
-    ui: &mut egui::Ui,
-    label: &str,
-    units: &str,
-    path: &str,
-    points: &[(f64, f64)],
-) {
-    let l = ui.label(format!("{label} ({units}), one point per line:"));
-    let key = format!("{path}#table");
-    let buf = wb.fields.entry(key.clone()).or_insert_with(|| {
-        points
-            .iter()
-            .map(|(x, y)| format!("{x}, {y}"))
-            .collect::<Vec<_>>()
-            .join("\n")
-    });
-    ui.add(egui::TextEdit::multiline(buf).desired_rows(4).code_editor())
-        .labelled_by(l.id);
-    let text = buf.clone();
-    if ui.button(format!("Apply {label}")).clicked() {
-        let parsed: Result<Vec<[f64; 2]>, String> = text
-            .lines()
-            .filter(|l| !l.trim().is_empty())
-            .enumerate()
-            .map(|(i, l)| {
-                let mut it = l.split(',').map(|v| v.trim().parse::<f64>());
-                match (it.next(), it.next(), it.next()) {
-                    (Some(Ok(x)), Some(Ok(y)), None) if x.is_finite() && y.is_finite() => {
-                        Ok([x, y])
+impl Visitor for Form<'_> {
+    fn field(&mut self, path: &str, label: &'static str, f: Field<'_>, relevant: bool) {
+        if !relevant {
+            return;
+        }
+        self.heading(path);
+        match f {
+            Field::Num(x, r) => self.num_ui(path, label, x, r),
+            Field::Count(n, _) => self.count_ui(path, label, n),
+            Field::Flag(b) => {
+                if self.ui.checkbox(b, label).changed() {
+                    self.changed = Some(path.to_owned());
+                }
+                self.error_ui(path);
+            }
+            Field::Choice(c) => {
+                let cur = c.current();
+                let mut pick = None;
+                self.ui.horizontal(|ui| {
+                    ui.label(format!("{label}:"));
+                    for o in c.options() {
+                        if ui.selectable_label(cur == *o, *o).clicked() && cur != *o {
+                            pick = Some(*o);
+                        }
                     }
-                    _ => Err(format!("line {}: '{l}' is not two numbers 'x, y'", i + 1)),
+                });
+                if let Some(o) = pick
+                    && c.select(o)
+                {
+                    self.changed = Some(path.to_owned());
                 }
-            })
-            .collect();
-        match parsed {
-            Ok(pts) => {
-                let json = serde_json::to_string(&pts).unwrap_or_default();
-                if wb.set(path, &json) {
-                    wb.fields.remove(&key);
-                }
+                self.error_ui(path);
             }
-            Err(e) => {
-                wb.field_errors.insert(path.to_owned(), e);
-            }
-        }
-    }
-    if let Some(e) = wb.field_errors.get(path) {
-        ui.colored_label(egui::Color32::RED, e);
-    }
-}
-
-pub fn sections_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
-    let Some(a) = wb.preset.axes.get(wb.axis_sel).cloned() else {
-        return;
-    };
-    let p = format!("axes.{}", a.name);
-    egui::CollapsingHeader::new("Backlash")
-        .default_open(true)
-        .show(ui, |ui| backlash_ui(wb, ui, &a, &p));
-    egui::CollapsingHeader::new("Quadrant").show(ui, |ui| quadrant_ui(wb, ui, &a, &p));
-    egui::CollapsingHeader::new("Thermal").show(ui, |ui| thermal_ui(wb, ui, &a, &p));
-    egui::CollapsingHeader::new("Cross").show(ui, |ui| cross_ui(wb, ui));
-    egui::CollapsingHeader::new("Servo").show(ui, |ui| servo_ui(wb, ui, &a, &p));
-    egui::CollapsingHeader::new("Plant effects").show(ui, |ui| plant_ui(wb, ui, &a, &p));
-}
-
-fn backlash_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
-    let b = &a.backlash;
-    bool_ui(
-        wb,
-        ui,
-        "backlash compensation on",
-        &format!("{p}.backlash.enabled"),
-        b.enabled,
-    );
-    num_ui(wb, ui, "Q", "µm", &format!("{p}.backlash.q_um"), b.q_um);
-    for (key, title, d) in [
-        ("plus_to_minus", "+ -> - reversal", &b.plus_to_minus),
-        ("minus_to_plus", "- -> + reversal", &b.minus_to_plus),
-    ] {
-        ui.label(egui::RichText::new(title).strong());
-        let dp = format!("{p}.backlash.{key}");
-        let mode = snake(&d.mode);
-        choice_ui(
-            wb,
-            ui,
-            &format!("{title} mode:"),
-            &format!("{dp}.mode"),
-            &mode,
-            &["lump", "distance", "time", "function"],
-        );
-        match mode.as_str() {
-            "distance" => {
-                num_ui(
-                    wb,
-                    ui,
-                    "parts N",
-                    "",
-                    &format!("{dp}.parts_n"),
-                    d.parts_n as f64,
-                );
-                num_ui(
-                    wb,
-                    ui,
-                    "step B",
-                    "µm",
-                    &format!("{dp}.step_b_um"),
-                    d.step_b_um,
-                );
-            }
-            "time" => num_ui(
-                wb,
-                ui,
-                "cycles M",
-                "",
-                &format!("{dp}.cycles_m"),
-                d.cycles_m as f64,
-            ),
-            "function" => {
-                let basis = snake(&d.function_basis);
-                choice_ui(
-                    wb,
-                    ui,
-                    "share over",
-                    &format!("{dp}.function_basis"),
-                    &basis,
-                    &["distance", "time"],
-                );
-                let units = if basis == "time" {
-                    "ms, share"
-                } else {
-                    "µm, share"
-                };
-                table_ui(
-                    wb,
-                    ui,
-                    "function",
-                    units,
-                    &format!("{dp}.function"),
-                    &d.function,
-                );
-            }
+            Field::Table(t, spec) => self.table_ui(path, label, t, spec),
+            // Names, files, letters and whole lists are set in the preset file, not here.
             _ => {}
         }
     }
 }
 
-fn quadrant_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
-    let q = &a.quadrant;
-    let qp = format!("{p}.quadrant");
-    bool_ui(
-        wb,
-        ui,
-        "quadrant compensation on",
-        &format!("{qp}.enabled"),
-        q.enabled,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "adaptive to short strokes (seed 003)",
-        &format!("{qp}.adaptive"),
-        q.adaptive,
-    );
-    num_ui(
-        wb,
-        ui,
-        "M0 (torque)",
-        "N·m",
-        &format!("{qp}.m0_torque_nm"),
-        q.m0_torque_nm,
-    );
-    num_ui(
-        wb,
-        ui,
-        "M0 (velocity)",
-        "mm/s",
-        &format!("{qp}.m0_vel_mm_per_s"),
-        q.m0_vel_mm_per_s,
-    );
-    num_ui(
-        wb,
-        ui,
-        "M0 (position)",
-        "µm",
-        &format!("{qp}.m0_pos_um"),
-        q.m0_pos_um,
-    );
-    num_ui(wb, ui, "T0", "ms", &format!("{qp}.t0_ms"), q.t0_ms);
-    num_ui(
-        wb,
-        ui,
-        "A (TFF magnification)",
-        "",
-        &format!("{qp}.a_mag"),
-        q.a_mag,
-    );
-    num_ui(
-        wb,
-        ui,
-        "B (TFF growth)",
-        "reversals",
-        &format!("{qp}.b_rate"),
-        q.b_rate,
-    );
-    num_ui(
-        wb,
-        ui,
-        "C (duration magnification)",
-        "",
-        &format!("{qp}.c_mag"),
-        q.c_mag,
-    );
-    num_ui(
-        wb,
-        ui,
-        "D (duration growth)",
-        "reversals",
-        &format!("{qp}.d_rate"),
-        q.d_rate,
-    );
-    num_ui(
-        wb,
-        ui,
-        "P0 (short stroke)",
-        "mm",
-        &format!("{qp}.p0_mm"),
-        q.p0_mm,
-    );
-    choice_ui(
-        wb,
-        ui,
-        "N update:",
-        &format!("{qp}.update"),
-        &snake(&q.update),
-        &["reset", "decrement"],
-    );
-    choice_ui(
-        wb,
-        ui,
-        "inject into:",
-        &format!("{qp}.inject"),
-        &snake(&q.inject),
-        &["torque", "velocity", "position"],
-    );
-    choice_ui(
-        wb,
-        ui,
-        "pulse:",
-        &format!("{qp}.shape"),
-        &snake(&q.shape),
-        &["rectangular", "exponential"],
-    );
+impl Workbench {
+    /// Applies an edited copy of the preset: checked like a file, then handed to the
+    /// running machine. On error the message is kept for `path` and nothing changes.
+    pub fn commit(&mut self, cand: Preset, path: &str) -> bool {
+        let errors = axisbench::machine::check(&cand);
+        if !errors.is_empty() {
+            let mine: Vec<String> = errors
+                .iter()
+                .filter(|e| e.path == path || e.path.starts_with(&format!("{path}.")))
+                .map(|e| e.reason.clone())
+                .collect();
+            let msg = if mine.is_empty() {
+                errors
+                    .iter()
+                    .map(|e| e.to_string())
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            } else {
+                mine.join("; ")
+            };
+            self.field_errors.insert(path.to_owned(), msg);
+            return false;
+        }
+        self.field_errors.remove(path);
+        self.fields.remove(path);
+        let applied = self.live.lock().machine.apply_params(&cand);
+        self.preset = cand;
+        if let Err(e) = applied {
+            // A structural change: start the machine again with the new settings.
+            self.status = format!("{e}; the machine was reset");
+            self.reset();
+        }
+        true
+    }
+
+    /// Edits the preset through `f` (a typed change made by a wizard or a plot), checked
+    /// and applied like a form edit; `path` names the field for the error message.
+    pub fn edit(&mut self, path: &str, f: impl FnOnce(&mut Preset)) -> bool {
+        let mut cand = self.preset.clone();
+        f(&mut cand);
+        self.commit(cand, path)
+    }
+
+    /// Draws the section the lens points at and applies what the user committed.
+    pub fn section_fields_ui(&mut self, ui: &mut egui::Ui, at: &str, lens: &Lens) {
+        let mut cand = self.preset.clone();
+        let Some(section) = lens(&mut cand) else {
+            return;
+        };
+        let mut form = Form {
+            ui,
+            bufs: &mut self.fields,
+            errors: &self.field_errors,
+            root: at.to_owned(),
+            heading: at.to_owned(),
+            changed: None,
+            parse_error: None,
+        };
+        section.walk(&mut Walker::new(at, &mut form));
+        let (changed, parse_error) = (form.changed, form.parse_error);
+        if let Some((path, msg)) = parse_error {
+            self.field_errors.insert(path, msg);
+        }
+        if let Some(path) = changed {
+            self.commit(cand, &path);
+        }
+    }
+}
+
+/// The lens to a section of axis `i`.
+fn axis_lens(
+    i: usize,
+    part: fn(&mut AxisParams) -> &mut dyn FieldsDyn,
+) -> impl Fn(&mut Preset) -> Option<&mut dyn FieldsDyn> {
+    move |p: &mut Preset| p.axes.get_mut(i).map(part)
+}
+
+/// The sections of the selected axis, then the machine-wide ones.
+pub fn sections_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
+    let i = wb.axis_sel;
+    let Some(name) = wb.preset.axes.get(i).map(|a| a.name.clone()) else {
+        return;
+    };
+    let at = format!("axes.{name}");
+    egui::CollapsingHeader::new("Backlash")
+        .default_open(true)
+        .show(ui, |ui| {
+            wb.section_fields_ui(
+                ui,
+                &format!("{at}.backlash"),
+                &axis_lens(i, |a| &mut a.backlash),
+            );
+        });
+    egui::CollapsingHeader::new("Quadrant").show(ui, |ui| {
+        wb.section_fields_ui(
+            ui,
+            &format!("{at}.quadrant"),
+            &axis_lens(i, |a| &mut a.quadrant),
+        );
+        quadrant_live_ui(wb, ui);
+    });
+    egui::CollapsingHeader::new("Thermal").show(ui, |ui| {
+        wb.section_fields_ui(
+            ui,
+            &format!("{at}.thermal"),
+            &axis_lens(i, |a| &mut a.thermal),
+        );
+        thermal_live_ui(wb, ui);
+        calibration_ui(wb, ui, &name);
+    });
+    egui::CollapsingHeader::new("Cross").show(ui, |ui| cross_ui(wb, ui));
+    egui::CollapsingHeader::new("Servo").show(ui, |ui| {
+        wb.section_fields_ui(ui, &format!("{at}.servo"), &axis_lens(i, |a| &mut a.servo));
+    });
+    egui::CollapsingHeader::new("Plant effects").show(ui, |ui| plant_ui(wb, ui, i, &at));
+    egui::CollapsingHeader::new("NC").show(ui, |ui| {
+        wb.section_fields_ui(ui, "nc", &|p: &mut Preset| {
+            Some(&mut p.nc as &mut dyn FieldsDyn)
+        });
+    });
+}
+
+/// The plant's effects, one sub-section each.
+fn plant_ui(wb: &mut Workbench, ui: &mut egui::Ui, i: usize, at: &str) {
+    type Part = fn(&mut AxisParams) -> &mut dyn FieldsDyn;
+    let parts: [(&str, &str, Part); 7] = [
+        ("Drive", "drive", |a| &mut a.drive),
+        ("Friction", "friction", |a| &mut a.friction),
+        ("Lost motion", "lost_motion", |a| &mut a.lost_motion),
+        ("Gravity and constant force", "gravity", |a| &mut a.gravity),
+        ("Screw thermal growth", "screw_thermal", |a| {
+            &mut a.screw_thermal
+        }),
+        ("Lead error", "lead_error", |a| &mut a.lead_error),
+        ("Encoders", "encoder", |a| &mut a.encoder),
+    ];
+    for (title, key, part) in parts {
+        egui::CollapsingHeader::new(title)
+            .id_salt(format!("plant-{key}"))
+            .show(ui, |ui| {
+                wb.section_fields_ui(ui, &format!("{at}.{key}"), &axis_lens(i, part));
+            });
+    }
+}
+
+fn quadrant_live_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     let axis = wb.axis_sel;
     let readout = {
         let s = wb.live.lock();
         s.machine
-            .comps()
-            .find::<Quadrant>()
+            .find_comp::<Quadrant>()
             .find(|c| axisbench::comp::ServoComp::axis(*c) == axis)
             .map(|c| (c.pa_m, c.n, c.m, c.t_s))
     };
@@ -356,117 +375,46 @@ fn quadrant_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         ui.label(format!(
             "live: PA = {} mm, N = {n}, M = {m:.4}, T = {:.2} ms",
             if pa.is_finite() {
-                format!("{:.3}", pa * 1e3)
+                format!("{:.3}", m_to_mm(pa))
             } else {
                 "—".into()
             },
-            t * 1e3
+            s_to_ms(t)
         ));
     }
 }
 
-fn thermal_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
-    let t = &a.thermal;
-    let tp = format!("{p}.thermal");
-    bool_ui(
-        wb,
-        ui,
-        "thermal correction on",
-        &format!("{tp}.enabled"),
-        t.enabled,
-    );
-    choice_ui(
-        wb,
-        ui,
-        "predictor:",
-        &format!("{tp}.source"),
-        &snake(&t.source),
-        &["operation", "temperature"],
-    );
-    num_ui(wb, ui, "k", "1/µm", &format!("{tp}.k_per_um"), t.k_per_um);
-    num_ui(wb, ui, "a", "", &format!("{tp}.a"), t.a);
-    num_ui(wb, ui, "Em", "", &format!("{tp}.em"), t.em);
-    choice_ui(
-        wb,
-        ui,
-        "judgement:",
-        &format!("{tp}.judgement"),
-        &snake(&t.judgement),
-        &["none", "since_last", "window", "reference"],
-    );
-    num_ui(
-        wb,
-        ui,
-        "ΔT (window)",
-        "s",
-        &format!("{tp}.window_s"),
-        t.window_s,
-    );
-    num_ui(
-        wb,
-        ui,
-        "measurement point",
-        "mm",
-        &format!("{tp}.measure_pos_mm"),
-        t.measure_pos_mm,
-    );
-    num_ui(
-        wb,
-        ui,
-        "predictor α",
-        "1/K",
-        &format!("{tp}.alpha_per_k"),
-        t.alpha_per_k,
-    );
-    num_ui(
-        wb,
-        ui,
-        "predictor heat",
-        "W·s/m",
-        &format!("{tp}.heat_w_s_per_m"),
-        t.heat_w_s_per_m,
-    );
-    num_ui(
-        wb,
-        ui,
-        "predictor capacity",
-        "J/K",
-        &format!("{tp}.capacity_j_per_k"),
-        t.capacity_j_per_k,
-    );
-    num_ui(
-        wb,
-        ui,
-        "predictor loss",
-        "W/K",
-        &format!("{tp}.loss_w_per_k"),
-        t.loss_w_per_k,
-    );
-    table_ui(wb, ui, "E_ref", "s, E", &format!("{tp}.e_ref"), &t.e_ref);
+fn thermal_live_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     let axis = wb.axis_sel;
     let readout = {
         let s = wb.live.lock();
         s.machine
-            .comps()
-            .find::<Thermal>()
+            .find_comp::<Thermal>()
             .find(|c| c.axis() == axis)
             .map(|c| (c.f_m, c.f_applied_m, c.e, c.measurements))
     };
     if let Some((f, fa, e, n)) = readout {
         ui.label(format!(
             "live: F = {:.3} µm, F' = {:.3} µm, E = {e:.4}, measurements {n}",
-            f * 1e6,
-            fa * 1e6
+            m_to_um(f),
+            m_to_um(fa)
         ));
     }
     if ui.button("Measure now").clicked() {
         let mut s = wb.live.lock();
-        for c in s.machine.comps_mut().find_mut::<Thermal>() {
+        for c in s.machine.find_comp_mut::<Thermal>() {
             if c.axis() == axis {
                 c.request_measurement();
             }
         }
     }
+}
+
+/// Seed 002's Step 1 and Step 2, run on the simulated machine; their results go into the
+/// preset like any edit.
+fn calibration_ui(wb: &mut Workbench, ui: &mut egui::Ui, name: &str) {
+    let i = wb.axis_sel;
+    let path = format!("axes.{name}.thermal");
     ui.label(egui::RichText::new("Calibration (seed 002), on the simulated machine").strong());
     ui.horizontal(|ui| {
         let l = ui.label("Step 1 interval");
@@ -479,14 +427,18 @@ fn thermal_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         if ui.button("Run Step 1 (fit k)").clicked() {
             let r = measure::thermal_step1(
                 &wb.preset,
-                &a.name,
+                name,
                 std::slice::from_ref(&wb.programs),
                 wb.step1_interval_s,
             );
             wb.step_result = Some(match r {
                 Ok(fit) => {
                     let k = fit.k_per_um;
-                    wb.set(&format!("{tp}.k_per_um"), &format!("{k}"));
+                    wb.edit(&format!("{path}.k_per_um"), |p| {
+                        if let Some(a) = p.axes.get_mut(i) {
+                            a.thermal.k_per_um = k;
+                        }
+                    });
                     format!("Step 1: k = {k:.6} per µm (applied)")
                 }
                 Err(e) => format!("Step 1 failed: {e}"),
@@ -502,10 +454,14 @@ fn thermal_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
         )
         .labelled_by(l.id);
         if ui.button("Run Step 2 (set a)").clicked() {
-            let r = measure::thermal_step2(&wb.preset, &a.name, &wb.programs, wb.step2_at_s);
+            let r = measure::thermal_step2(&wb.preset, name, &wb.programs, wb.step2_at_s);
             wb.step_result = Some(match r {
                 Ok(av) => {
-                    wb.set(&format!("{tp}.a"), &format!("{av}"));
+                    wb.edit(&format!("{path}.a"), |p| {
+                        if let Some(a) = p.axes.get_mut(i) {
+                            a.thermal.a = av;
+                        }
+                    });
                     format!("Step 2: a = {av:.4} (applied)")
                 }
                 Err(e) => format!("Step 2 failed: {e}"),
@@ -518,29 +474,26 @@ fn thermal_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
 }
 
 fn cross_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
-    let tables = wb.preset.cross.clone();
-    if tables.is_empty() {
+    let n = wb.preset.cross.len();
+    if n == 0 {
         ui.label("no cross tables");
     }
-    for (i, t) in tables.iter().enumerate() {
+    for ti in 0..n {
+        let Some(t) = wb.preset.cross.get(ti) else {
+            break;
+        };
         ui.label(
             egui::RichText::new(format!(
                 "table {}: {} over {}",
-                i + 1,
+                ti + 1,
                 t.comp_axis,
                 t.base_axis
             ))
             .strong(),
         );
-        bool_ui(wb, ui, "on", &format!("cross.{i}.enabled"), t.enabled);
-        table_ui(
-            wb,
-            ui,
-            &format!("points {}", i + 1),
-            "mm, µm",
-            &format!("cross.{i}.points"),
-            &t.points,
-        );
+        wb.section_fields_ui(ui, &format!("cross.{ti}"), &move |p: &mut Preset| {
+            p.cross.get_mut(ti).map(|t| t as &mut dyn FieldsDyn)
+        });
     }
     if wb.preset.crossbeam.enabled {
         ui.horizontal(|ui| {
@@ -550,12 +503,11 @@ fn cross_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             if ui.button("Measure tables from machine").clicked() {
                 match measure::sag_tables(&wb.preset, wb.sag_points) {
                     Ok(tables) => {
-                        let json = serde_json::to_string(&tables).unwrap_or_default();
-                        if wb.set("cross", &json) {
+                        let count = tables.len();
+                        if wb.edit("cross", |p| p.cross = tables) {
                             wb.fields.retain(|k, _| !k.starts_with("cross."));
                             wb.status = format!(
-                                "measured {} cross tables of {} points",
-                                tables.len(),
+                                "measured {count} cross tables of {} points",
                                 wb.sag_points
                             );
                         }
@@ -565,292 +517,4 @@ fn cross_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             }
         });
     }
-}
-
-fn servo_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
-    let s = &a.servo;
-    let sp = format!("{p}.servo");
-    num_ui(
-        wb,
-        ui,
-        "position gain Kp",
-        "1/s",
-        &format!("{sp}.kp_per_s"),
-        s.kp_per_s,
-    );
-    num_ui(
-        wb,
-        ui,
-        "velocity gain Kv",
-        "N·s/m",
-        &format!("{sp}.kv_n_s_per_m"),
-        s.kv_n_s_per_m,
-    );
-    num_ui(
-        wb,
-        ui,
-        "velocity integral",
-        "1/s",
-        &format!("{sp}.ki_per_s"),
-        s.ki_per_s,
-    );
-    num_ui(
-        wb,
-        ui,
-        "velocity feed-forward",
-        "",
-        &format!("{sp}.vff"),
-        s.vff,
-    );
-    num_ui(
-        wb,
-        ui,
-        "acceleration feed-forward",
-        "",
-        &format!("{sp}.aff"),
-        s.aff,
-    );
-    num_ui(
-        wb,
-        ui,
-        "current-loop lag",
-        "s",
-        &format!("{sp}.current_lag_s"),
-        s.current_lag_s,
-    );
-    num_ui(
-        wb,
-        ui,
-        "torque limit",
-        "N·m",
-        &format!("{sp}.torque_limit_nm"),
-        s.torque_limit_nm,
-    );
-    let fb = if s.feedback == axisbench::preset::Feedback::Motor {
-        "motor"
-    } else {
-        "scale"
-    };
-    choice_ui(
-        wb,
-        ui,
-        "position feedback:",
-        &format!("{sp}.feedback"),
-        fb,
-        &["motor", "scale"],
-    );
-}
-
-fn plant_ui(wb: &mut Workbench, ui: &mut egui::Ui, a: &AxisParams, p: &str) {
-    let two_mass = matches!(a.drive.coupling, Coupling::TwoMass { .. });
-    let mut tm = two_mass;
-    if ui
-        .checkbox(&mut tm, "two-mass drive (compliant screw)")
-        .changed()
-    {
-        let v = if tm {
-            r#"{"two_mass":{"stiffness_n_per_um":150.0,"damping_n_s_per_m":20000.0}}"#
-        } else {
-            r#""rigid""#
-        };
-        wb.set(&format!("{p}.drive.coupling"), v);
-    }
-    if let Coupling::TwoMass {
-        stiffness_n_per_um,
-        damping_n_s_per_m,
-    } = a.drive.coupling
-    {
-        num_ui(
-            wb,
-            ui,
-            "stiffness",
-            "N/µm",
-            &format!("{p}.drive.coupling.two_mass.stiffness_n_per_um"),
-            stiffness_n_per_um,
-        );
-        num_ui(
-            wb,
-            ui,
-            "damping",
-            "N·s/m",
-            &format!("{p}.drive.coupling.two_mass.damping_n_s_per_m"),
-            damping_n_s_per_m,
-        );
-    }
-    num_ui(
-        wb,
-        ui,
-        "table mass",
-        "kg",
-        &format!("{p}.drive.table_mass_kg"),
-        a.drive.table_mass_kg,
-    );
-    num_ui(
-        wb,
-        ui,
-        "motor inertia",
-        "kg·m²",
-        &format!("{p}.drive.motor_inertia_kgm2"),
-        a.drive.motor_inertia_kgm2,
-    );
-    num_ui(
-        wb,
-        ui,
-        "screw lead",
-        "mm",
-        &format!("{p}.drive.lead_mm"),
-        a.drive.lead_mm,
-    );
-    let f = &a.friction;
-    bool_ui(
-        wb,
-        ui,
-        "friction",
-        &format!("{p}.friction.enabled"),
-        f.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "Coulomb",
-        "N",
-        &format!("{p}.friction.coulomb_n"),
-        f.coulomb_n,
-    );
-    num_ui(
-        wb,
-        ui,
-        "viscous",
-        "N·s/m",
-        &format!("{p}.friction.viscous_n_s_per_m"),
-        f.viscous_n_s_per_m,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "Stribeck (breakaway)",
-        &format!("{p}.friction.stribeck.enabled"),
-        f.stribeck.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "breakaway",
-        "N",
-        &format!("{p}.friction.stribeck.static_n"),
-        f.stribeck.static_n,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "short-stroke friction rise",
-        &format!("{p}.friction.stroke.enabled"),
-        f.stroke.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "groove pitch",
-        "mm",
-        &format!("{p}.friction.stroke.pitch_mm"),
-        f.stroke.pitch_mm,
-    );
-    num_ui(
-        wb,
-        ui,
-        "rise",
-        "",
-        &format!("{p}.friction.stroke.rise_ratio"),
-        f.stroke.rise_ratio,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "lost motion (backlash)",
-        &format!("{p}.lost_motion.enabled"),
-        a.lost_motion.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "play b",
-        "µm",
-        &format!("{p}.lost_motion.width_um"),
-        a.lost_motion.width_um,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "gravity",
-        &format!("{p}.gravity.enabled"),
-        a.gravity.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "incline",
-        "deg",
-        &format!("{p}.gravity.incline_deg"),
-        a.gravity.incline_deg,
-    );
-    num_ui(
-        wb,
-        ui,
-        "moving mass",
-        "kg",
-        &format!("{p}.gravity.moving_mass_kg"),
-        a.gravity.moving_mass_kg,
-    );
-    num_ui(
-        wb,
-        ui,
-        "constant force",
-        "N",
-        &format!("{p}.gravity.offset_n"),
-        a.gravity.offset_n,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "screw thermal growth",
-        &format!("{p}.screw_thermal.enabled"),
-        a.screw_thermal.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "screw heat capacity",
-        "J/K",
-        &format!("{p}.screw_thermal.heat_capacity_j_per_k"),
-        a.screw_thermal.heat_capacity_j_per_k,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "lead error",
-        &format!("{p}.lead_error.enabled"),
-        a.lead_error.enabled,
-    );
-    num_ui(
-        wb,
-        ui,
-        "lead error amplitude",
-        "µm",
-        &format!("{p}.lead_error.amplitude_um"),
-        a.lead_error.amplitude_um,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "quantize motor encoder",
-        &format!("{p}.encoder.quantize_motor"),
-        a.encoder.quantize_motor,
-    );
-    bool_ui(
-        wb,
-        ui,
-        "quantize linear scale",
-        &format!("{p}.encoder.quantize_scale"),
-        a.encoder.quantize_scale,
-    );
 }

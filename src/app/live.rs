@@ -112,17 +112,31 @@ pub struct Shared {
     pub steps_pending: u64,
     /// Fractional steps carried between worker rounds.
     carry: f64,
+    /// Why the model stopped by itself (it diverged, or its trace filled up); cleared by a
+    /// reset.
+    pub fault: Option<String>,
 }
 
 impl Shared {
     /// Runs up to `n` T3 steps (stopping at the program end) and collects their samples.
+    /// A model that leaves every physical range stops here with its reason, so the plots
+    /// never fill with non-finite numbers.
     pub fn step_n(&mut self, n: u64) {
+        if self.fault.is_some() {
+            self.running = false;
+            return;
+        }
         for _ in 0..n {
             if self.machine.done() {
                 self.running = false;
                 break;
             }
             self.machine.step();
+        }
+        if let Err(e) = self.machine.health() {
+            self.running = false;
+            self.fault = Some(e.to_string());
+            return;
         }
         self.ring.take_from(&mut self.machine);
     }
@@ -145,6 +159,7 @@ impl Live {
                 ring,
                 steps_pending: 0,
                 carry: 0.0,
+                fault: None,
             })),
             worker: None,
         }
@@ -166,6 +181,7 @@ impl Live {
         s.machine = machine;
         s.carry = 0.0;
         s.steps_pending = 0;
+        s.fault = None;
     }
 
     /// Synchronous stepping (tests, the Step button when no worker runs).

@@ -1,8 +1,9 @@
 //! The tuning workbench: the live machine on the left (scenario, program, run controls and
 //! every parameter), linked plots in the middle. A thin layer over the model: every edit
-//! goes through `Preset::with_override` (the same validation as files and the CLI) and
+//! goes through a typed lens on the preset (`edit.rs`), the same validation as files and the CLI, and
 //! `Machine::apply_params`, so it takes effect from the next control period.
 
+mod assets;
 mod diagnose;
 mod edit;
 mod live;
@@ -18,42 +19,11 @@ use std::path::PathBuf;
 use anyhow::{Context as _, Result};
 use axisbench::analysis;
 use axisbench::export::{self, Target};
+use axisbench::preset::comp::Reversal;
 use axisbench::preset::{self, Preset, SHIPPED_PRESETS};
 use axisbench::{Machine, Trace};
 
 pub use live::Live;
-
-/// What a trainer gets told when loading each shipped scenario.
-pub const SCENARIO_NOTES: &[(&str, &str)] = &[
-    (
-        "default.ron",
-        "A horizontal X axis with 8 µm backlash and Coulomb friction. Watch x.err at the reversals: without backlash compensation the error steps by the lost motion; with it (Backlash, lump) the step is gone.",
-    ),
-    (
-        "vertical_z_gravity.ron",
-        "A vertical Z axis whose weight keeps the load on one flank. Up->down and down->up reversals lose motion differently, which is why seed 000 lets each direction output the backlash correction its own way.",
-    ),
-    (
-        "short_stroke_quadrant.ron",
-        "Seed 003's workpiece: after a long stroke (A), several 10 mm strokes (B), then 40 mm (C). Friction rises on short strokes, so a fixed torque feed-forward leaves larger glitches at B; the adaptive one grows with N.",
-    ),
-    (
-        "thermal_warmup.ron",
-        "Two hours of strokes from cold (run at 1000×). The screw heats and grows from its fixed bearing. The thermal correction scales its prediction by E and measures again when E has drifted by Em.",
-    ),
-    (
-        "vertical_lathe_crossbeam.ron",
-        "A vertical lathe: two tool posts on one crossbeam, which sags under them. The cross tables add the measured sag to each Z as a function of the posts' X positions.",
-    ),
-    (
-        "xy_circle.ron",
-        "A circle test, as a ballbar shows it: the radial error magnified on the polar plot. Friction leaves quadrant glitches where an axis reverses; T1 = 4 ms leaves chords in normal mode.",
-    ),
-    (
-        "emps.ron",
-        "The EMPS rig as published (no Coulomb friction): the nominal model the sim-to-real diagnosis starts from.",
-    ),
-];
 
 /// The label of a target's export button.
 pub fn export_label(t: Target) -> String {
@@ -211,33 +181,6 @@ impl Workbench {
             .map_or_else(|| "x".into(), |a| a.name.clone())
     }
 
-    /// Applies one edit by preset path. On error the previous value stays in force and the
-    /// message is kept for the field.
-    pub fn set(&mut self, path: &str, value: &str) -> bool {
-        match self.preset.with_override(path, value) {
-            Ok(p) => {
-                self.field_errors.remove(path);
-                let applied = self.live.lock().machine.apply_params(&p);
-                self.preset = p;
-                if let Err(e) = applied {
-                    // A structural change: start the machine again with the new settings.
-                    self.status = format!("{e}; the machine was reset");
-                    self.reset();
-                }
-                true
-            }
-            Err(e) => {
-                let msg = e.to_string();
-                let short = msg
-                    .split_once(": ")
-                    .map_or(msg.as_str(), |(_, r)| r)
-                    .to_owned();
-                self.field_errors.insert(path.to_owned(), short);
-                false
-            }
-        }
-    }
-
     /// Rebuilds the machine from the current preset and programs (Reset).
     pub fn reset(&mut self) {
         match Machine::new(&self.preset, &self.programs) {
@@ -334,16 +277,24 @@ impl Workbench {
 
     /// Saves the preset (atomically) to `path`, with its programs next to it.
     pub fn save_to(&mut self, path: PathBuf) {
+        // The preset and its programs are one unit: all of them are written, or none.
         let r = (|| -> Result<()> {
             let ron = self.preset.to_ron()?;
-            axisbench::fsutil::write_atomic(&path, ron.as_bytes())
-                .with_context(|| format!("{}: cannot write", path.display()))?;
-            let dir = path.parent().map(PathBuf::from).unwrap_or_default();
-            for (name, text) in &self.programs {
-                let p = dir.join(name);
-                axisbench::fsutil::write_atomic(&p, text.as_bytes())
-                    .with_context(|| format!("{}: cannot write", p.display()))?;
-            }
+            let dir = match path.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            let name = path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .with_context(|| format!("{}: not a file name", path.display()))?;
+            let mut files = vec![(name, ron.into_bytes())];
+            files.extend(
+                self.programs
+                    .iter()
+                    .map(|(n, text)| (n.clone(), text.clone().into_bytes())),
+            );
+            axisbench::fsutil::write_all_atomic(&dir, &files)?;
             Ok(())
         })();
         match r {
@@ -407,7 +358,7 @@ impl Workbench {
         } else {
             (
                 "compensation off".to_owned(),
-                axisbench::comp::measure::uncompensated_scenario(&self.preset),
+                self.preset.compensations_off(),
             )
         };
         let mut runs = vec![];
@@ -423,14 +374,16 @@ impl Workbench {
                     return;
                 }
             };
-            m.run(4.0 * 3600.0);
+            if let Err(e) = m.run(4.0 * 3600.0) {
+                self.status = format!("cannot compare: {e}");
+                return;
+            }
             let sums = analysis::summarize(&m.trace);
             if let Some(s) = sums.iter().find(|s| s.axis == axis) {
-                // Directions are "+→−" and "−→+": the first character tells them apart.
                 let worst = |plus_to_minus: bool| {
                     s.reversals
                         .iter()
-                        .filter(|r| r.direction.starts_with('+') == plus_to_minus)
+                        .filter(|r| (r.direction == Reversal::PlusToMinus) == plus_to_minus)
                         .map(|r| r.peak_err_mm * 1e3)
                         .fold(0.0, f64::max)
                 };
@@ -464,12 +417,13 @@ impl Workbench {
         self.menu_ui(ui);
         egui::Panel::bottom("status").show(ui, |ui| {
             ui.horizontal(|ui| {
-                let (t, mode, running) = {
+                let (t, mode, running, fault) = {
                     let s = self.live.lock();
                     (
                         s.machine.t_s(),
                         s.machine.channels.first().map(|c| c.mode),
                         s.running,
+                        s.fault.clone(),
                     )
                 };
                 ui.label(format!(
@@ -481,6 +435,12 @@ impl Workbench {
                     if running { "running" } else { "paused" }
                 ));
                 ui.separator();
+                if let Some(f) = fault {
+                    ui.colored_label(
+                        egui::Color32::RED,
+                        format!("stopped: {f} (Reset to start again)"),
+                    );
+                }
                 ui.label(&self.status);
             });
         });
@@ -594,10 +554,7 @@ impl Workbench {
                 });
                 ui.menu_button("Scenarios", |ui| {
                     for name in SHIPPED_PRESETS {
-                        let note = SCENARIO_NOTES
-                            .iter()
-                            .find(|(n, _)| n == name)
-                            .map_or("", |n| n.1);
+                        let note = assets::scenario_note(name);
                         if ui.button(*name).on_hover_text(note).clicked() {
                             self.load_scenario(name);
                             ui.close();
@@ -670,9 +627,19 @@ impl Workbench {
 
     fn run_controls_ui(&mut self, ui: &mut egui::Ui) {
         ui.heading("Machine");
-        if let Some((_, note)) = SCENARIO_NOTES.iter().find(|(n, _)| *n == self.origin) {
-            ui.label(egui::RichText::new(*note).italics());
+        let note = assets::scenario_note(&self.origin);
+        if !note.is_empty() {
+            ui.label(egui::RichText::new(note).italics());
         }
+        self.files_ui(ui);
+        self.run_buttons_ui(ui);
+        self.modes_ui(ui);
+        self.program_ui(ui);
+        self.axis_select_ui(ui);
+    }
+
+    /// Scenario choice, the path field with its open/save/export/trace buttons.
+    fn files_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             let mut chosen = None;
             egui::ComboBox::from_label("Scenario")
@@ -708,6 +675,10 @@ impl Workbench {
                 self.open_trace(PathBuf::from(self.path_input.trim()));
             }
         });
+    }
+
+    /// Run, pause, step, reset; speed and plot window.
+    fn run_buttons_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             let running = self.live.lock().running;
             if ui.add_enabled(!running, egui::Button::new("Run")).clicked() {
@@ -746,6 +717,10 @@ impl Workbench {
             ui.add(egui::Slider::new(&mut self.window_s, 1.0..=live::MAX_WINDOW_S).suffix(" s"))
                 .labelled_by(label.id);
         });
+    }
+
+    /// The NC's initial processing mode and the PLC's mode-switch requests (seed 001).
+    fn modes_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             ui.label("Initial mode:");
             let mode = self.preset.nc.initial_mode;
@@ -753,11 +728,10 @@ impl Workbench {
                 (preset::Mode::Normal, "normal"),
                 (preset::Mode::Direct, "direct command"),
             ] {
-                if ui.selectable_label(mode == m, label).clicked() && mode != m {
-                    self.set(
-                        "nc.initial_mode",
-                        label.split(' ').next().unwrap_or("normal"),
-                    );
+                if ui.selectable_label(mode == m, label).clicked()
+                    && mode != m
+                    && self.edit("nc.initial_mode", |p| p.nc.initial_mode = m)
+                {
                     self.reset();
                 }
             }
@@ -777,6 +751,10 @@ impl Workbench {
                     .plc_request(0, preset::Mode::Normal);
             }
         });
+    }
+
+    /// The program editor of each channel.
+    fn program_ui(&mut self, ui: &mut egui::Ui) {
         egui::CollapsingHeader::new("Program")
             .default_open(false)
             .show(ui, |ui| {
@@ -816,6 +794,10 @@ impl Workbench {
                     ui.colored_label(egui::Color32::RED, e);
                 }
             });
+    }
+
+    /// Which axis the parameter sections show.
+    fn axis_select_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             ui.label("Axis:");
             for (i, a) in self.preset.axes.iter().enumerate() {
@@ -927,10 +909,14 @@ pub fn run(preset: Option<PathBuf>, start: bool) -> Result<()> {
         }
     }
     wb.live.lock().running = start;
+    let mut viewport = egui::ViewportBuilder::default()
+        .with_title("axisbench")
+        .with_inner_size([1280.0, 800.0]);
+    if let Some(icon) = assets::icon() {
+        viewport = viewport.with_icon(std::sync::Arc::new(icon));
+    }
     let options = eframe::NativeOptions {
-        viewport: egui::ViewportBuilder::default()
-            .with_title("axisbench")
-            .with_inner_size([1280.0, 800.0]),
+        viewport,
         ..Default::default()
     };
     eframe::run_native(

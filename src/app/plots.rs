@@ -457,15 +457,19 @@ pub fn sag_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             && let Some(p) = pointer
             && let Some(t) = wb.preset.cross.get(ti)
         {
-            let pts: Vec<[f64; 2]> = t
+            let pts: Vec<(f64, f64)> = t
                 .points
                 .iter()
                 .enumerate()
-                .map(|(i, &(x, y))| if i == pi { [x, -p.y] } else { [x, y] })
+                .map(|(i, &(x, y))| if i == pi { (x, -p.y) } else { (x, y) })
                 .collect();
-            let json = serde_json::to_string(&pts).unwrap_or_default();
-            if wb.set(&format!("cross.{ti}.points"), &json) {
-                wb.fields.remove(&format!("cross.{ti}.points#table"));
+            let path = format!("cross.{ti}.points");
+            if wb.edit(&path, |q| {
+                if let Some(t) = q.cross.get_mut(ti) {
+                    t.points = pts;
+                }
+            }) {
+                wb.fields.remove(&format!("{path}#table"));
             }
         }
         if r.drag_stopped() {

@@ -4,9 +4,10 @@
 #[cfg(test)]
 use eframe::egui;
 use egui_kittest::Harness;
-use egui_kittest::kittest::Queryable;
+use egui_kittest::kittest::{NodeT, Queryable};
 
-use axisbench::comp::backlash::{Backlash, OutputMode};
+use axisbench::comp::backlash::Backlash;
+use axisbench::preset::comp::OutputMode;
 
 use super::{Tab, Workbench};
 
@@ -47,8 +48,7 @@ fn backlash_mode_change_reaches_the_model_and_the_next_reversal() {
         let s = wb.live.lock();
         let b = s
             .machine
-            .comps()
-            .find::<Backlash>()
+            .find_comp::<Backlash>()
             .next()
             .expect("backlash installed");
         assert_eq!(
@@ -141,15 +141,17 @@ fn a_bad_value_shows_an_error_and_keeps_the_previous_value() {
     );
     // A number the validator refuses is just as harmless.
     let wb = h.state_mut();
-    assert!(!wb.set("axes.x.backlash.q_um", "-5"));
+    assert!(!wb.edit("axes.x.backlash.q_um", |p| p.axes[0].backlash.q_um = -5.0));
     assert_eq!(wb.preset.axes[0].backlash.q_um, before);
     assert!(
         wb.field_errors
             .get("axes.x.backlash.q_um")
-            .is_some_and(|e| e.contains("≥ 0"))
+            .is_some_and(|e| e.contains("-5 is outside the allowed range 0 … 100000 um")),
+        "{:?}",
+        wb.field_errors
     );
     // A good value is taken and the machine gets it.
-    assert!(wb.set("axes.x.backlash.q_um", "9.5"));
+    assert!(wb.edit("axes.x.backlash.q_um", |p| p.axes[0].backlash.q_um = 9.5));
     assert_eq!(wb.live.lock().machine.preset.axes[0].backlash.q_um, 9.5);
     assert!(wb.dirty(), "edits mark the preset unsaved");
 }
@@ -198,7 +200,7 @@ fn saves_are_atomic_files_that_load_back() {
     std::fs::create_dir_all(&dir).expect("dir");
     let path = dir.join("mine.ron");
     let mut wb = default_wb();
-    assert!(wb.set("axes.x.backlash.q_um", "5.5"));
+    assert!(wb.edit("axes.x.backlash.q_um", |p| p.axes[0].backlash.q_um = 5.5));
     wb.save_to(path.clone());
     assert!(!wb.dirty());
     assert!(
@@ -345,4 +347,121 @@ fn export_buttons_write_the_target_files_and_the_report() {
         "7.4 µm → 7 detection units: {fanuc}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Opens every closed section (and sub-section) of the machine panel; sub-sections only
+/// appear once their parent is open, so this repeats until none is left closed.
+fn open_all_sections(h: &mut Harness<'static, Workbench>) {
+    for _ in 0..4 {
+        let closed: Vec<String> = h
+            .query_all_by_role(egui::accesskit::Role::DisclosureTriangle)
+            .filter(|n| n.accesskit_node().data().is_expanded() == Some(false))
+            .filter_map(|n| n.accesskit_node().label())
+            .collect();
+        if closed.is_empty() {
+            return;
+        }
+        for title in closed {
+            if let Some(n) = h.query_by_label(&title) {
+                n.click();
+            }
+            h.run();
+        }
+    }
+}
+
+/// Every on/off box switched on, so that the fields it hides are shown too.
+fn switch_everything_on(h: &mut Harness<'static, Workbench>) -> usize {
+    let mut switched = 0;
+    let boxes: Vec<String> = h
+        .query_all_by_role(egui::accesskit::Role::CheckBox)
+        .filter_map(|n| n.accesskit_node().label())
+        .collect();
+    for label in boxes {
+        if let Some(n) = h.query_by_label(&label)
+            && n.accesskit_node().toggled() == Some(egui::accesskit::Toggled::False)
+        {
+            n.click();
+            h.run();
+            switched += 1;
+        }
+    }
+    switched
+}
+
+#[test]
+fn extreme_values_in_every_numeric_field_leave_the_model_finite_and_the_app_responsive() {
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1600.0, 6000.0))
+        .build_ui_state(|ui, wb: &mut Workbench| wb.ui(ui), default_wb());
+    h.run();
+    open_all_sections(&mut h);
+    let switched = switch_everything_on(&mut h);
+    open_all_sections(&mut h);
+    let mut labels: Vec<String> = h
+        .query_all_by_role(egui::accesskit::Role::TextInput)
+        .filter_map(|n| n.accesskit_node().label())
+        .filter(|l| !l.contains("record") && l != "Path:" && !l.starts_with("Program"))
+        .collect();
+    labels.dedup();
+    assert!(switched >= 5, "only {switched} on/off boxes switched on");
+    assert!(
+        labels.len() >= 40,
+        "only {} numeric fields found: {labels:?}",
+        labels.len()
+    );
+    let extremes = ["1e300", "1e-300", "0", "-1", "NaN", "inf", "fast", "-1e300"];
+    let mut typed = 0;
+    for label in &labels {
+        for value in extremes {
+            // A label can repeat (one per reversal direction): each field in turn.
+            let count = h
+                .query_all_by_role_and_label(egui::accesskit::Role::TextInput, label)
+                .count();
+            for i in 0..count {
+                let Some(n) = h
+                    .query_all_by_role_and_label(egui::accesskit::Role::TextInput, label)
+                    .nth(i)
+                else {
+                    continue;
+                };
+                n.focus();
+                n.set_text_value_accesskit(value);
+                h.run();
+                h.key_press(egui::Key::Enter);
+                h.run();
+                typed += 1;
+            }
+        }
+        // The live model stays finite and keeps stepping after every field.
+        let wb = h.state();
+        wb.live.advance(200);
+        let s = wb.live.lock();
+        assert!(s.fault.is_none(), "after '{label}': {:?}", s.fault);
+        for a in &s.machine.axes {
+            assert!(a.pos_m.is_finite(), "after '{label}': position not finite");
+        }
+        assert!(
+            axisbench::machine::check(&wb.preset).is_empty(),
+            "after '{label}': the preset in force is not valid"
+        );
+    }
+    assert!(typed >= 400, "only {typed} values typed");
+    // Still responsive: a sound value typed now is taken, and the model runs on it.
+    let kp = h.state().preset.axes[0].servo.kp_per_s * 0.9;
+    let n = h.get_by_label("Kp");
+    n.focus();
+    n.set_text_value_accesskit(&kp.to_string());
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    let wb = h.state();
+    assert_eq!(
+        wb.preset.axes[0].servo.kp_per_s, kp,
+        "{:?}",
+        wb.field_errors
+    );
+    let t0_s = wb.live.lock().machine.t_s();
+    wb.live.advance(100);
+    assert!(wb.live.lock().machine.t_s() > t0_s);
 }

@@ -43,17 +43,11 @@ pub fn diagnose(a: Args) -> Result<()> {
             ),
         }
     }
-    let t3 = preset.timing.t3_s;
     let read = |p: &PathBuf| -> Result<(Record, String)> {
         let file = p.display().to_string();
         let tr = diagnose::read_record(p, preset, a.map.as_deref())?;
         let axis = diagnose::pick_axis(&tr, &file, preset, a.axis.as_deref())?;
-        let base = diagnose::base_axis_of(preset, &axis)
-            .filter(|b| tr.signal(&format!("{b}.pos")).is_some());
-        Ok((
-            Record::from_trace(&tr, &file, &axis, base.as_deref(), t3)?,
-            file,
-        ))
+        Ok((Record::for_preset(&tr, &file, preset, &axis)?, file))
     };
     let (main, main_file) = read(&a.trace)?;
     let validate = a.validate.as_ref().map(read).transpose()?;
@@ -131,7 +125,43 @@ fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
         r.samples_holdout,
         secs
     );
-    say!("time offset record vs model: {:+.3} ms", r.time_offset_ms);
+    print_calibration(r);
+    print_where(r);
+    print_which(r);
+    print_how_far(r);
+}
+
+/// The calibration of the nominal and any channel logged off its instant.
+fn print_calibration(r: &Report) {
+    let c = &r.calibration;
+    say!("\nCALIBRATION (nominal parameters re-fitted first, within ±8 %):");
+    say!(
+        "  {}",
+        axisbench::diagnose::report::calibration_lines(&c.ratios).join(", ")
+    );
+    if !c.at_bound.is_empty() {
+        let names: Vec<&str> = c.at_bound.iter().map(|p| p.name()).collect();
+        say!(
+            "  at the ±8 % bound (more than a correction): {}",
+            names.join(", ")
+        );
+    }
+    match &c.skew {
+        Some(s) => say!(
+            "  MEASUREMENT: the {:?} channel is logged {:+.2} samples off its time stamps; realigned before the effects",
+            s.channel,
+            s.samples
+        ),
+        None => say!("  no channel logged off its instant"),
+    }
+    say!(
+        "  common lag of position and force behind the model: {:.2} samples ({:+.3} ms)",
+        -c.common_lag_samples,
+        r.time_offset_ms
+    );
+}
+
+fn print_where(r: &Report) {
     say!("\nWHERE (held-out position residual of the nominal model, um):");
     say!(
         "  {:<22} {:>7} {:>9} {:>9}",
@@ -157,11 +187,17 @@ fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
             w.peak
         );
     }
-    say!("\nWHICH (ranked by held-out shrink minus complexity penalty):");
+}
+
+fn print_which(r: &Report) {
+    say!(
+        "\nWHICH (found = signature in the residual and held-out shrink; ranked by shrink minus complexity penalty):"
+    );
     for (i, e) in r.ranking.iter().enumerate() {
         let params: Vec<String> = e
             .params
             .iter()
+            .filter(|(k, _)| !k.starts_with("calibration_"))
             .map(|(k, v)| match e.params_std.get(k) {
                 Some(s) if s.is_finite() && *s > 0.0 => format!("{k}={v:.4} +-{s:.2}"),
                 _ => format!("{k}={v:.4}"),
@@ -175,15 +211,27 @@ fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
             if e.significant { "*" } else { " " },
             params.join(" ")
         );
+        say!(
+            "      {} {}",
+            if e.evidence_pass {
+                "signature:"
+            } else {
+                "no signature:"
+            },
+            e.evidence
+        );
     }
-    say!("  (* significant)");
+    say!("  (* found)");
     say!("\nVERDICT: {}", r.verdict);
     if r.verdict == "none" {
-        say!("  no significant unmodelled effect");
+        say!("  no unmodelled effect found beyond the calibration");
     } else {
-        say!("  added greedily: {}", r.selected.join(" + "));
+        say!("  added in turn: {}", r.selected.join(" + "));
     }
-    say!("\nHOW FAR (held out, position residual, um):");
+}
+
+fn print_how_far(r: &Report) {
+    say!("\nHOW FAR (held out, position residual, um; before = the nominal as given):");
     say!(
         "  overall rms {:.3} -> {:.3} ({:+.1}%), peak {:.3} -> {:.3}",
         r.overall.rms_before,
@@ -220,26 +268,36 @@ fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
 }
 
 pub fn eval(
+    generator: &str,
     cases: usize,
     seed: u64,
     duration_s: f64,
     verbose: bool,
     only: Vec<usize>,
 ) -> Result<()> {
-    let cfg = eval::EvalConfig {
-        cases,
+    use axisbench::evaluation::{self, EvalConfig, Generator};
+    let generator = Generator::from_name(generator)
+        .with_context(|| format!("--generator {generator}: not 'independent' or 'own'"))?;
+    let cfg = EvalConfig {
+        generator,
         seed,
         duration_s,
+        cases,
         only,
     };
     let t0 = Instant::now();
-    let line = |s: &str| {
+    let line = |o: &evaluation::Outcome| {
         if verbose {
-            say!("{s}");
+            say!("{}", evaluation::case_line(o));
         }
     };
-    let res = eval::run(&cfg, &progress_line, &line)?;
-    say!("{}", res.summary());
+    let res = evaluation::run(&cfg, &line)?;
+    say!(
+        "generator={} seed={seed} duration={duration_s} s cases={}",
+        generator.name(),
+        res.len()
+    );
+    say!("{}", evaluation::summary(&res));
     say!("elapsed {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())
 }

@@ -23,139 +23,12 @@
 //! value, split by that direction's mode (N or M parts of that amount). So the correction
 //! always ends at the value of the current direction, however short the strokes.
 
-use serde::{Deserialize, Serialize};
-
 use super::{CompSignal, PosCompCtx, PositionComp};
+use crate::preset::comp::{BacklashParams, FunctionBasis, OutputMode};
+use crate::units::{ms_to_s, um_to_m};
 
 /// Commanded travel per cycle below this (m) is standstill, not a direction.
 pub const MOVE_EPS_M: f64 = 1e-12;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum OutputMode {
-    #[default]
-    Lump,
-    Distance,
-    Time,
-    Function,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum FunctionBasis {
-    #[default]
-    Distance,
-    Time,
-}
-
-/// How one reversal direction outputs its correction.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DirectionParams {
-    pub mode: OutputMode,
-    /// Distance mode: number of parts N.
-    pub parts_n: u32,
-    /// Distance mode: travel B between parts.
-    pub step_b_um: f64,
-    /// Time mode: number of cycles M.
-    pub cycles_m: u32,
-    /// Function mode: what the table's x is (distance in µm or time in ms since reversal).
-    pub function_basis: FunctionBasis,
-    /// Function mode: (distance µm or time ms, cumulative share 0…1), ending at share 1.
-    pub function: Vec<(f64, f64)>,
-}
-
-impl Default for DirectionParams {
-    fn default() -> Self {
-        DirectionParams {
-            mode: OutputMode::Lump,
-            parts_n: 4,
-            step_b_um: 50.0,
-            cycles_m: 8,
-            function_basis: FunctionBasis::Distance,
-            function: vec![(0.0, 0.0), (100.0, 1.0)],
-        }
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct BacklashParams {
-    pub enabled: bool,
-    /// Backlash amount Q.
-    pub q_um: f64,
-    pub plus_to_minus: DirectionParams,
-    pub minus_to_plus: DirectionParams,
-}
-
-impl Default for BacklashParams {
-    fn default() -> Self {
-        BacklashParams {
-            enabled: false,
-            q_um: 0.0,
-            plus_to_minus: DirectionParams::default(),
-            minus_to_plus: DirectionParams::default(),
-        }
-    }
-}
-
-impl BacklashParams {
-    /// Validation findings as (field path relative to this block, reason).
-    pub fn check(&self) -> Vec<(String, String)> {
-        let mut out = Vec::new();
-        if !self.q_um.is_finite() || self.q_um < 0.0 {
-            out.push((
-                "q_um".into(),
-                format!("{} must be a finite amount ≥ 0", self.q_um),
-            ));
-        }
-        for (name, d) in [
-            ("plus_to_minus", &self.plus_to_minus),
-            ("minus_to_plus", &self.minus_to_plus),
-        ] {
-            if d.parts_n == 0 {
-                out.push((format!("{name}.parts_n"), "must be ≥ 1".into()));
-            }
-            if d.cycles_m == 0 {
-                out.push((format!("{name}.cycles_m"), "must be ≥ 1".into()));
-            }
-            if !d.step_b_um.is_finite() || d.step_b_um <= 0.0 {
-                out.push((
-                    format!("{name}.step_b_um"),
-                    format!("{} must be > 0", d.step_b_um),
-                ));
-            }
-            if d.mode == OutputMode::Function {
-                out.extend(crate::table::check(
-                    &format!("{name}.function"),
-                    &d.function,
-                    2,
-                ));
-                for (i, &(x, f)) in d.function.iter().enumerate() {
-                    if !(0.0..=1.0).contains(&f) {
-                        out.push((
-                            format!("{name}.function[{i}]"),
-                            format!("share {f} is outside 0…1"),
-                        ));
-                    }
-                    if x < 0.0 {
-                        out.push((
-                            format!("{name}.function[{i}]"),
-                            format!("x = {x} is before the reversal"),
-                        ));
-                    }
-                }
-                if d.function.last().is_some_and(|p| p.1 != 1.0) {
-                    out.push((
-                        format!("{name}.function"),
-                        "the last share must be 1 (all of Q)".into(),
-                    ));
-                }
-            }
-        }
-        out
-    }
-}
 
 /// The sequence being output after the latest reversal.
 #[derive(Debug, Clone)]
@@ -185,6 +58,7 @@ struct Sequence {
 pub struct Backlash {
     axis: usize,
     axis_name: String,
+    /// The preset's parameters (Q and each direction's output mode); editable while running.
     pub p: BacklashParams,
     /// Last non-zero direction of the distributed move command.
     pub dir: i8,
@@ -195,10 +69,12 @@ pub struct Backlash {
     /// Output of the latest cycle, m.
     pub out_m: f64,
     seq: Option<Sequence>,
+    /// Reversals of the distributed move command seen since start.
     pub reversals: u64,
 }
 
 impl Backlash {
+    /// Compensation for axis index `axis`, as at power-on: no direction yet, correction 0.
     pub fn new(axis: usize, axis_name: &str, p: BacklashParams) -> Backlash {
         Backlash {
             axis,
@@ -213,6 +89,7 @@ impl Backlash {
         }
     }
 
+    /// Index of the compensated axis, in preset order.
     pub fn axis(&self) -> usize {
         self.axis
     }
@@ -222,7 +99,7 @@ impl Backlash {
         if dir == 0 || dir == self.ref_dir {
             0.0
         } else {
-            dir as f64 * self.p.q_um * 1e-6
+            dir as f64 * um_to_m(self.p.q_um)
         }
     }
 
@@ -239,114 +116,14 @@ impl Backlash {
         let travel = d_m.abs();
         let mut out = 0.0;
         if s != 0 && self.dir != 0 && s != self.dir {
-            self.reversals += 1;
-            let dp = if s < 0 {
-                &self.p.plus_to_minus
-            } else {
-                &self.p.minus_to_plus
-            };
-            let amount = self.target_m(s) - self.acc_m;
-            let mut seq = Sequence {
-                mode: dp.mode,
-                amount_m: amount,
-                part_m: 0.0,
-                n: 1,
-                parts: 1,
-                r_m: travel,
-                step_b_m: dp.step_b_um * 1e-6,
-                cycles: 1,
-                basis: dp.function_basis,
-                table: dp
-                    .function
-                    .iter()
-                    .map(|&(x, f)| match dp.function_basis {
-                        FunctionBasis::Distance => (x * 1e-6, f),
-                        FunctionBasis::Time => (x * 1e-3, f),
-                    })
-                    .collect(),
-                share: 0.0,
-                emitted_m: 0.0,
-            };
-            match dp.mode {
-                OutputMode::Lump => out = amount,
-                OutputMode::Distance => {
-                    seq.parts = dp.parts_n.max(1);
-                    seq.part_m = amount / seq.parts as f64;
-                    out = seq.part_m;
-                }
-                OutputMode::Time => {
-                    seq.parts = dp.cycles_m.max(1);
-                    seq.part_m = amount / seq.parts as f64;
-                    out = seq.part_m;
-                }
-                OutputMode::Function => {
-                    let x = match seq.basis {
-                        FunctionBasis::Distance => seq.r_m,
-                        FunctionBasis::Time => period_s,
-                    };
-                    out = function_output(&mut seq, x);
-                }
-            }
-            let done = match seq.mode {
-                OutputMode::Lump => true,
-                OutputMode::Distance | OutputMode::Time => seq.parts == 1,
-                OutputMode::Function => seq.share >= 1.0,
-            };
-            seq.emitted_m = out;
-            self.seq = if done { None } else { Some(seq) };
+            out = self.start_reversal(s, travel, period_s);
         } else if s != 0 && self.dir == 0 {
             self.ref_dir = s;
         } else if let Some(seq) = &mut self.seq {
-            let mut done = false;
-            match seq.mode {
-                OutputMode::Lump => done = true,
-                OutputMode::Distance => {
-                    if seq.r_m >= seq.step_b_m * seq.n as f64 {
-                        seq.n += 1;
-                        if seq.n > seq.parts {
-                            done = true;
-                        } else {
-                            seq.r_m += travel;
-                            out = seq.part_m;
-                            if seq.n == seq.parts {
-                                done = true;
-                            }
-                        }
-                    } else {
-                        seq.r_m += travel;
-                    }
-                }
-                OutputMode::Time => {
-                    seq.n += 1;
-                    if seq.n > seq.parts {
-                        done = true;
-                    } else {
-                        out = seq.part_m;
-                        if seq.n == seq.parts {
-                            done = true;
-                        }
-                    }
-                }
-                OutputMode::Function => {
-                    seq.r_m += travel;
-                    seq.cycles += 1;
-                    let x = match seq.basis {
-                        FunctionBasis::Distance => seq.r_m,
-                        FunctionBasis::Time => seq.cycles as f64 * period_s,
-                    };
-                    out = function_output(seq, x);
-                    done = seq.share >= 1.0;
-                }
-            }
+            let (o, done) = seq.next(travel, period_s);
+            out = o;
             if done {
-                // The last part lands the correction exactly on its target, whatever
-                // rounding the division into parts left.
-                if out != 0.0 {
-                    out = seq.amount_m - seq.emitted_m;
-                }
                 self.seq = None;
-            } else {
-                seq.emitted_m += out;
             }
         }
         if s != 0 {
@@ -355,6 +132,121 @@ impl Backlash {
         self.acc_m += out;
         self.out_m = out;
         out
+    }
+
+    /// A reversal into direction `s`: starts that direction's sequence for whatever takes
+    /// the accumulated correction to the new direction's value; returns its first output.
+    fn start_reversal(&mut self, s: i8, travel: f64, period_s: f64) -> f64 {
+        self.reversals += 1;
+        let dp = if s < 0 {
+            &self.p.plus_to_minus
+        } else {
+            &self.p.minus_to_plus
+        };
+        let amount = self.target_m(s) - self.acc_m;
+        let mut seq = Sequence {
+            mode: dp.mode,
+            amount_m: amount,
+            part_m: 0.0,
+            n: 1,
+            parts: 1,
+            r_m: travel,
+            step_b_m: um_to_m(dp.step_b_um),
+            cycles: 1,
+            basis: dp.function_basis,
+            table: dp
+                .function
+                .iter()
+                .map(|&(x, f)| match dp.function_basis {
+                    FunctionBasis::Distance => (um_to_m(x), f),
+                    FunctionBasis::Time => (ms_to_s(x), f),
+                })
+                .collect(),
+            share: 0.0,
+            emitted_m: 0.0,
+        };
+        let out = match dp.mode {
+            OutputMode::Lump => amount,
+            OutputMode::Distance | OutputMode::Time => {
+                let n = if dp.mode == OutputMode::Distance {
+                    dp.parts_n
+                } else {
+                    dp.cycles_m
+                };
+                seq.parts = n.max(1);
+                seq.part_m = amount / seq.parts as f64;
+                seq.part_m
+            }
+            OutputMode::Function => {
+                let x = match seq.basis {
+                    FunctionBasis::Distance => seq.r_m,
+                    FunctionBasis::Time => period_s,
+                };
+                function_output(&mut seq, x)
+            }
+        };
+        let done = match seq.mode {
+            OutputMode::Lump => true,
+            OutputMode::Distance | OutputMode::Time => seq.parts == 1,
+            OutputMode::Function => seq.share >= 1.0,
+        };
+        seq.emitted_m = out;
+        self.seq = if done { None } else { Some(seq) };
+        out
+    }
+}
+
+impl Sequence {
+    /// The output of the next cycle of a running sequence (m), and whether it is the last.
+    fn next(&mut self, travel: f64, period_s: f64) -> (f64, bool) {
+        let mut out = 0.0;
+        let done = match self.mode {
+            OutputMode::Lump => true,
+            OutputMode::Distance => {
+                if self.r_m >= self.step_b_m * self.n as f64 {
+                    self.n += 1;
+                    if self.n > self.parts {
+                        true
+                    } else {
+                        self.r_m += travel;
+                        out = self.part_m;
+                        self.n == self.parts
+                    }
+                } else {
+                    self.r_m += travel;
+                    false
+                }
+            }
+            OutputMode::Time => {
+                self.n += 1;
+                if self.n > self.parts {
+                    true
+                } else {
+                    out = self.part_m;
+                    self.n == self.parts
+                }
+            }
+            OutputMode::Function => {
+                self.r_m += travel;
+                self.cycles += 1;
+                let x = match self.basis {
+                    FunctionBasis::Distance => self.r_m,
+                    FunctionBasis::Time => self.cycles as f64 * period_s,
+                };
+                out = function_output(self, x);
+                self.share >= 1.0
+            }
+        };
+        if done {
+            // The last part lands the correction exactly on its target, whatever rounding
+            // the division into parts left.
+            if out != 0.0 {
+                out = self.amount_m - self.emitted_m;
+            }
+        } else {
+            self.emitted_m += out;
+        }
+        (out, done)
     }
 }
 

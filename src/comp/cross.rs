@@ -11,32 +11,8 @@
 //! The base position is the base axis's uncompensated command, as the NC knows it when it
 //! generates the command, so the correction does not feed back on itself.
 
-use serde::{Deserialize, Serialize};
-
 use super::{CompSignal, PosCompCtx, PositionComp};
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CrossTable {
-    #[serde(default = "yes")]
-    pub enabled: bool,
-    /// Axis whose position selects the correction (the crossbeam X).
-    pub base_axis: String,
-    /// Axis that receives the correction (the tool post's Z).
-    pub comp_axis: String,
-    /// (base position mm, correction µm), base positions strictly increasing.
-    pub points: Vec<(f64, f64)>,
-}
-
-fn yes() -> bool {
-    true
-}
-
-impl CrossTable {
-    pub fn check(&self) -> Vec<(String, String)> {
-        crate::table::check("points", &self.points, 2)
-    }
-}
+use crate::preset::comp::CrossTable;
 
 /// One installed table, in SI.
 struct Installed {
@@ -77,6 +53,7 @@ impl Cross {
         }
     }
 
+    /// True when no enabled table resolved to known axes: nothing to install.
     pub fn is_empty(&self) -> bool {
         self.tables.is_empty()
     }

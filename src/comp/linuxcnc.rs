@@ -34,6 +34,7 @@ pub const COMP_SIZE: usize = 256;
 /// One comp-file row as LinuxCNC stores it: nominal position and the two trims.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CompRow {
+    /// Nominal (commanded) joint position of the row, mm; rows must strictly increase.
     pub nominal: f64,
     /// Trim added while moving in + (`vel_cmd > 0`).
     pub fwd: f64,
@@ -57,9 +58,19 @@ impl CompRow {
 #[derive(Debug, Clone, PartialEq)]
 pub enum LoadIssue {
     /// "joint N: compensation values must increase"
-    NotIncreasing { row: usize, nominal: f64, prev: f64 },
+    NotIncreasing {
+        /// Index of the rejected row in the input (0-based).
+        row: usize,
+        /// Its nominal position, mm.
+        nominal: f64,
+        /// Nominal of the last accepted row it fails to exceed, mm.
+        prev: f64,
+    },
     /// "joint N: too many compensation entries"
-    TooMany { row: usize },
+    TooMany {
+        /// Index of the dropped row in the input (0-based); every row past [`COMP_SIZE`].
+        row: usize,
+    },
 }
 
 impl std::fmt::Display for LoadIssue {
@@ -160,6 +171,7 @@ impl CompTable {
         self.entries.len() - 2
     }
 
+    /// No rows accepted: the joint falls back to ±BACKLASH/2.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -194,16 +206,22 @@ pub struct JointParams {
 /// The compensation state of one LinuxCNC joint: one [`LinuxCncComp::step`] per servo period.
 #[derive(Debug, Clone)]
 pub struct LinuxCncComp {
+    /// The joint's loaded comp table; when non-empty it replaces BACKLASH.
     pub table: CompTable,
+    /// Joint limits and servo period the ramp uses.
     pub p: JointParams,
     /// `comp.entry`: index of the table entry at or below the last position.
     entry: usize,
+    /// `joint->backlash_corr`: the raw correction for the current direction and position, mm.
     pub backlash_corr: f64,
+    /// `joint->backlash_filt`: the ramped correction added to `motor_pos_cmd`, mm.
     pub backlash_filt: f64,
+    /// `joint->backlash_vel`: rate of `backlash_filt` in the ramp, mm/s (signed).
     pub backlash_vel: f64,
 }
 
 impl LinuxCncComp {
+    /// A joint as after LinuxCNC start-up: corrections 0, table pointer at the low sentinel.
     pub fn new(table: CompTable, p: JointParams) -> LinuxCncComp {
         LinuxCncComp {
             table,
@@ -327,10 +345,12 @@ impl LinuxCncComp {
 pub struct LinuxCncPosComp {
     axis: usize,
     axis_name: String,
+    /// The modelled LinuxCNC joint (mm); its servo period is set from each generation period.
     pub joint: LinuxCncComp,
 }
 
 impl LinuxCncPosComp {
+    /// Installs `joint` on axis index `axis`, named `axis_name` in the trace.
     pub fn new(axis: usize, axis_name: &str, joint: LinuxCncComp) -> LinuxCncPosComp {
         LinuxCncPosComp {
             axis,

@@ -12,129 +12,14 @@
 //! With `adaptive` off, N stays 0: a fixed TFF of M0 for T0, the conventional compensation
 //! the seed improves on. The first reversal measures PA from where the motion started.
 
-use serde::{Deserialize, Serialize};
-
 use super::{CompSignal, ServoComp, ServoCompCtx, ServoCompOut};
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum NUpdate {
-    /// N := 0 after a long stroke (the seed's embodiment).
-    #[default]
-    Reset,
-    /// N := N − 1 after a long stroke, not below 0 (the claim's wording).
-    Decrement,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Injection {
-    #[default]
-    Torque,
-    Velocity,
-    Position,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum PulseShape {
-    #[default]
-    Rectangular,
-    Exponential,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct QuadrantParams {
-    pub enabled: bool,
-    /// Adapt M and T to short strokes (seed 003); off = fixed TFF of M0 for T0.
-    pub adaptive: bool,
-    /// Pulse amount M0 for torque injection.
-    pub m0_torque_nm: f64,
-    /// Pulse amount M0 for velocity injection.
-    pub m0_vel_mm_per_s: f64,
-    /// Pulse amount M0 for position injection.
-    pub m0_pos_um: f64,
-    /// Pulse duration T0 (rectangular) or time constant (exponential).
-    pub t0_ms: f64,
-    /// TFF magnification A.
-    pub a_mag: f64,
-    /// TFF growth rate B (in reversals).
-    pub b_rate: f64,
-    /// Duration magnification C.
-    pub c_mag: f64,
-    /// Duration growth rate D (in reversals).
-    pub d_rate: f64,
-    /// Short-stroke threshold P0.
-    pub p0_mm: f64,
-    pub update: NUpdate,
-    pub inject: Injection,
-    pub shape: PulseShape,
-}
-
-impl Default for QuadrantParams {
-    fn default() -> Self {
-        // The seed's example: A = 2, B = 10, C = 1, D = 10.
-        QuadrantParams {
-            enabled: false,
-            adaptive: true,
-            m0_torque_nm: 0.5,
-            m0_vel_mm_per_s: 1.0,
-            m0_pos_um: 2.0,
-            t0_ms: 10.0,
-            a_mag: 2.0,
-            b_rate: 10.0,
-            c_mag: 1.0,
-            d_rate: 10.0,
-            p0_mm: 15.0,
-            update: NUpdate::Reset,
-            inject: Injection::Torque,
-            shape: PulseShape::Rectangular,
-        }
-    }
-}
-
-impl QuadrantParams {
-    pub fn check(&self) -> Vec<(String, String)> {
-        let mut out = Vec::new();
-        let mut finite = |name: &str, v: f64, min: f64, strict: bool| {
-            if !v.is_finite() || v < min || (strict && v == min) {
-                out.push((
-                    name.to_owned(),
-                    format!("{v} must be {} {min}", if strict { ">" } else { "≥" }),
-                ));
-            }
-        };
-        finite("m0_torque_nm", self.m0_torque_nm, 0.0, false);
-        finite("m0_vel_mm_per_s", self.m0_vel_mm_per_s, 0.0, false);
-        finite("m0_pos_um", self.m0_pos_um, 0.0, false);
-        finite("t0_ms", self.t0_ms, 0.0, true);
-        finite("a_mag", self.a_mag, 0.0, true);
-        finite("b_rate", self.b_rate, 0.0, true);
-        finite("c_mag", self.c_mag, 0.0, true);
-        finite("d_rate", self.d_rate, 0.0, true);
-        finite("p0_mm", self.p0_mm, 0.0, false);
-        out
-    }
-
-    /// M and T for a short-stroke count N: M = M0·A^(1−e^(−N/B)), T = T0·C^(1−e^(−N/D)).
-    /// M is in the unit of the injection point.
-    pub fn m_t(&self, n: f64) -> (f64, f64) {
-        let m0 = match self.inject {
-            Injection::Torque => self.m0_torque_nm,
-            Injection::Velocity => self.m0_vel_mm_per_s,
-            Injection::Position => self.m0_pos_um,
-        };
-        let m = m0 * self.a_mag.powf(1.0 - (-n / self.b_rate).exp());
-        let t = self.t0_ms * 1e-3 * self.c_mag.powf(1.0 - (-n / self.d_rate).exp());
-        (m, t)
-    }
-}
+use crate::preset::comp::{Injection, NUpdate, PulseShape, QuadrantParams};
 
 /// Quadrant compensation of one axis.
 pub struct Quadrant {
     axis: usize,
     axis_name: String,
+    /// The preset's parameters (M0, T0, A–D, P0, shape, injection); editable while running.
     pub p: QuadrantParams,
     dir: i8,
     last_rev_m: Option<f64>,
@@ -144,15 +29,18 @@ pub struct Quadrant {
     pub n: f64,
     /// Amount and duration of the latest pulse (M in the injection unit, T in s).
     pub m: f64,
+    /// Duration T of the latest pulse, s (the time constant for an exponential pulse).
     pub t_s: f64,
     pulse_age_s: Option<f64>,
     pulse_dir: f64,
     /// Value injected this T3, in the injection unit.
     pub value: f64,
+    /// Reversals of the internal position command seen since start.
     pub reversals: u64,
 }
 
 impl Quadrant {
+    /// Compensation for axis index `axis`; no reversal seen yet, N = 0, so M = M0 and T = T0.
     pub fn new(axis: usize, axis_name: &str, p: QuadrantParams) -> Quadrant {
         let (m, t) = p.m_t(0.0);
         Quadrant {

@@ -21,154 +21,9 @@
 //! A_i at intervals, D_i = A_i + F_i, r_i = D_i/F_i (skip F_i = 0, drop r_i < 0), and fit
 //! r = a + k·|F| by least squares; over several programs k is the mean of their slopes.
 
-use nalgebra::{DMatrix, DVector};
-use serde::{Deserialize, Serialize};
-
 use super::{CompSignal, PosCompCtx, PositionComp};
-
-pub const E_MIN: f64 = 0.01;
-pub const E_MAX: f64 = 10.0;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Source {
-    /// Operation history: the control's own screw model driven by commanded speed.
-    #[default]
-    Operation,
-    /// The plant's screw temperature, through a first-order sensor lag.
-    Temperature,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Judgement {
-    /// Never measure automatically.
-    #[default]
-    None,
-    SinceLast,
-    Window,
-    Reference,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ThermalParams {
-    pub enabled: bool,
-    pub source: Source,
-    /// Predictor: expansion coefficient it assumes.
-    pub alpha_per_k: f64,
-    /// Operation model: heat per commanded speed.
-    pub heat_w_s_per_m: f64,
-    pub capacity_j_per_k: f64,
-    pub loss_w_per_k: f64,
-    /// Temperature source: sensor time constant.
-    pub sensor_lag_s: f64,
-    pub ambient_c: f64,
-    pub reference_c: f64,
-    pub fixed_end_mm: f64,
-    /// Measurement point x_m; F is the predicted displacement there.
-    pub measure_pos_mm: f64,
-    /// E = a + k·|F|, F in µm.
-    pub k_per_um: f64,
-    pub a: f64,
-    /// Threshold Em on E.
-    pub em: f64,
-    pub judgement: Judgement,
-    /// Window ΔT of the `window` judgement.
-    pub window_s: f64,
-    /// Check times of the `reference` judgement.
-    pub check_times_s: Vec<f64>,
-    /// Reference curve E_ref(t): (t s, E).
-    pub e_ref: Vec<(f64, f64)>,
-}
-
-impl Default for ThermalParams {
-    fn default() -> Self {
-        ThermalParams {
-            enabled: false,
-            source: Source::Operation,
-            alpha_per_k: 11.0e-6,
-            heat_w_s_per_m: 100.0,
-            capacity_j_per_k: 4000.0,
-            loss_w_per_k: 3.0,
-            sensor_lag_s: 120.0,
-            ambient_c: 20.0,
-            reference_c: 20.0,
-            fixed_end_mm: 0.0,
-            measure_pos_mm: 250.0,
-            k_per_um: 0.0,
-            a: 1.0,
-            em: 0.05,
-            judgement: Judgement::None,
-            window_s: 600.0,
-            check_times_s: vec![],
-            e_ref: vec![],
-        }
-    }
-}
-
-impl ThermalParams {
-    pub fn check(&self) -> Vec<(String, String)> {
-        let mut out = Vec::new();
-        let mut pos = |name: &str, v: f64| {
-            if !v.is_finite() || v <= 0.0 {
-                out.push((name.to_owned(), format!("{v} must be > 0")));
-            }
-        };
-        pos("capacity_j_per_k", self.capacity_j_per_k);
-        pos("sensor_lag_s", self.sensor_lag_s);
-        pos("window_s", self.window_s);
-        pos("em", self.em);
-        for (name, v) in [
-            ("alpha_per_k", self.alpha_per_k),
-            ("heat_w_s_per_m", self.heat_w_s_per_m),
-            ("loss_w_per_k", self.loss_w_per_k),
-        ] {
-            if !v.is_finite() || v < 0.0 {
-                out.push((name.into(), format!("{v} must be a finite amount ≥ 0")));
-            }
-        }
-        for (name, v) in [
-            ("ambient_c", self.ambient_c),
-            ("reference_c", self.reference_c),
-            ("fixed_end_mm", self.fixed_end_mm),
-            ("measure_pos_mm", self.measure_pos_mm),
-            ("k_per_um", self.k_per_um),
-            ("a", self.a),
-        ] {
-            if !v.is_finite() {
-                out.push((name.into(), format!("{v} is not a finite number")));
-            }
-        }
-        if self.measure_pos_mm == self.fixed_end_mm {
-            out.push((
-                "measure_pos_mm".into(),
-                "must differ from fixed_end_mm (no growth at the fixed bearing)".into(),
-            ));
-        }
-        out.extend(crate::table::check("e_ref", &self.e_ref, 0));
-        if self.judgement == Judgement::Reference && self.e_ref.len() < 2 {
-            out.push((
-                "e_ref".into(),
-                "the reference judgement needs a curve of ≥ 2 points".into(),
-            ));
-        }
-        for (i, w) in self.check_times_s.windows(2).enumerate() {
-            if w[1] <= w[0] || w[1].is_nan() {
-                out.push((
-                    format!("check_times_s[{}]", i + 1),
-                    "times must increase".into(),
-                ));
-            }
-        }
-        out
-    }
-
-    /// E for a predicted displacement F (m).
-    pub fn e_of(&self, f_m: f64) -> f64 {
-        (self.a + self.k_per_um * (f_m * 1e6).abs()).clamp(E_MIN, E_MAX)
-    }
-}
+use crate::preset::comp::{Judgement, Source, ThermalParams};
+use nalgebra::{DMatrix, DVector};
 
 /// Decides when to measure again. Fed E once per period; returns true at the period in which
 /// the condition is first met.
@@ -187,6 +42,7 @@ pub struct Judge {
 }
 
 impl Judge {
+    /// A judge with the preset's rule, threshold Em, window ΔT and check times; nothing seen yet.
     pub fn new(p: &ThermalParams) -> Judge {
         Judge {
             kind: p.judgement,
@@ -202,6 +58,7 @@ impl Judge {
         }
     }
 
+    /// Feeds E at time `t_s` (s); true while the selected rule says re-measure (E dimensionless).
     pub fn update(&mut self, t_s: f64, e: f64) -> bool {
         match self.kind {
             Judgement::None => false,
@@ -251,17 +108,20 @@ impl Judge {
 pub struct Thermal {
     axis: usize,
     axis_name: String,
+    /// The preset's parameters; `a` is rewritten by each measurement (step 2).
     pub p: ThermalParams,
     judge: Judge,
     /// Predictor state: modelled screw temperature (operation) or sensor reading.
     pub pred_temp_c: f64,
     /// Predicted displacement F at the measurement point, m.
     pub f_m: f64,
+    /// Adjustment value E = a + k·|F|, within 0.01…10 (dimensionless).
     pub e: f64,
     /// Applied correction at the measurement point F' = E·F, m.
     pub f_applied_m: f64,
     /// Requested a measurement and waits for it.
     pending: bool,
+    /// Measurements taken since start (automatic and requested).
     pub measurements: u32,
     /// Last measured residual A (m), shown as a sparse trace signal.
     pub last_meas_m: Option<f64>,
@@ -276,6 +136,7 @@ pub struct Thermal {
 }
 
 impl Thermal {
+    /// Correction for axis index `axis` as at power-on: predictor at ambient, F = 0, E = a.
     pub fn new(axis: usize, axis_name: &str, p: ThermalParams) -> Thermal {
         Thermal {
             axis,
@@ -296,6 +157,7 @@ impl Thermal {
         }
     }
 
+    /// Index of the corrected axis, in preset order.
     pub fn axis(&self) -> usize {
         self.axis
     }
@@ -438,17 +300,25 @@ impl PositionComp for Thermal {
     }
 }
 
+/// Why step 1 could not fit r = a + k·|F|.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CalibError {
+    /// A program's series has fewer than 2 usable points, or all at the same |F|.
     #[error(
         "program {program}: {used} usable points (F ≠ 0, r ≥ 0), at least 2 with different |F| are needed"
     )]
-    TooFew { program: usize, used: usize },
+    TooFew {
+        /// Index of the offending program in the input.
+        program: usize,
+        /// Points left after dropping F = 0 and r < 0.
+        used: usize,
+    },
 }
 
 /// Step 1 result: the mean slope and each program's own fit.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Step1 {
+    /// k: mean of the programs' slopes, per µm of |F|.
     pub k_per_um: f64,
     /// Per program: (a, k per µm, points used).
     pub fits: Vec<(f64, f64, usize)>,

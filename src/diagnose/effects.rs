@@ -99,7 +99,7 @@ impl Effect {
             ],
             Effect::ViscousFriction => &[p!("viscous_n_s_per_m", -1.0e5, 1.0e5, 100.0)],
             Effect::StrokeFriction => &[
-                p!("rise_ratio", 0.0, 5.0, 0.5),
+                p!("rise_n", 0.0, 5000.0, 20.0),
                 p!("pitch_mm", 0.5, 200.0, 10.0),
             ],
             Effect::Backlash => &[p!("width_um", 0.0, 500.0, 5.0)],
@@ -109,12 +109,14 @@ impl Effect {
             ],
             Effect::ConstantForce => &[p!("force_n", -1.0e4, 1.0e4, 10.0)],
             Effect::Compliance => &[
-                p!("stiffness_n_per_um", 1.0, 2000.0, 100.0),
-                p!("damping_n_s_per_m", 10.0, 1.0e5, 2000.0),
+                p!("stiffness_n_per_um", 0.01, 2000.0, 10.0),
+                p!("damping_n_s_per_m", 1.0, 1.0e5, 500.0),
+                p!("far_mass_share", 0.05, 0.95, 0.3),
             ],
             Effect::ThermalGrowth => &[
                 p!("heat_w_s_per_m", 0.0, 1.0e5, 100.0),
                 p!("time_constant_s", 10.0, 36000.0, 1200.0),
+                p!("fixed_end_mm", -2000.0, 2000.0, 100.0),
             ],
             Effect::BeamSag => &[p!("post_weight_n", -1.0e5, 1.0e5, 1000.0)],
             Effect::LeadError => &[
@@ -153,9 +155,11 @@ impl Effect {
                 a.friction.viscous_n_s_per_m = (a.friction.viscous_n_s_per_m + th[0]).max(0.0);
             }
             Effect::StrokeFriction => {
+                a.friction.enabled = true;
                 let s = &mut a.friction.stroke;
                 s.enabled = true;
-                s.rise_ratio = th[0];
+                s.rise_ratio = 0.0;
+                s.rise_n = th[0];
                 s.pitch_mm = th[1];
             }
             Effect::Backlash => {
@@ -173,6 +177,13 @@ impl Effect {
                 a.gravity.offset_n += th[0];
             }
             Effect::Compliance => {
+                // A share of the moving mass sits beyond the spring (the table, or a payload
+                // on it); the rest moves with the motor.
+                let total = a.drive.total_mass_kg();
+                let far = (th[2] * total).max(1e-3);
+                let k = a.drive.force_per_torque();
+                a.drive.table_mass_kg = far;
+                a.drive.motor_inertia_kgm2 = (total - far).max(1e-6) / (k * k);
                 a.drive.coupling = Coupling::TwoMass {
                     stiffness_n_per_um: th[0],
                     damping_n_s_per_m: th[1],
@@ -188,6 +199,7 @@ impl Effect {
                 t.heat_capacity_j_per_k = t.loss_w_per_k * th[1].max(1.0);
                 t.initial_c = t.ambient_c;
                 t.reference_c = t.ambient_c;
+                t.fixed_end_mm = th[2];
             }
             Effect::BeamSag => {}
             Effect::LeadError => {

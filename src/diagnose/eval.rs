@@ -3,7 +3,7 @@
 //! sees only the record and the nominal preset.
 
 use super::effects::Effect;
-use super::replay::{ForceEvent, Model, Record, simulate};
+use super::replay::{Disturbance, ForceEvent, Model, Record, simulate};
 use super::{DiagnoseError, Options, Progress};
 use crate::preset::{AxisParams, Feedback, PosSource, Preset};
 use std::collections::BTreeMap;
@@ -197,14 +197,22 @@ fn hide(e: Effect, rng: &mut Rng, m: &mut Model, n: usize, params: &mut BTreeMap
         Effect::CoulombFriction => vec![rng.range(30.0, 120.0)],
         Effect::StribeckFriction => vec![rng.range(80.0, 250.0), rng.range(0.8, 4.0)],
         Effect::ViscousFriction => vec![rng.sign() * rng.range(800.0, 3000.0)],
-        Effect::StrokeFriction => vec![rng.range(1.0, 2.5), rng.range(4.0, 15.0)],
+        Effect::StrokeFriction => vec![rng.range(60.0, 150.0), rng.range(4.0, 15.0)],
         Effect::Backlash => vec![rng.range(6.0, 25.0)],
         Effect::BacklashAsymmetry => {
             vec![rng.range(8.0, 25.0), rng.sign() * rng.range(100.0, 400.0)]
         }
         Effect::ConstantForce => vec![rng.sign() * rng.range(40.0, 200.0)],
-        Effect::Compliance => vec![rng.range(8.0, 40.0), rng.range(500.0, 3000.0)],
-        Effect::ThermalGrowth => vec![rng.range(3000.0, 8000.0), rng.range(8.0, 20.0)],
+        Effect::Compliance => vec![
+            rng.range(8.0, 40.0),
+            rng.range(500.0, 3000.0),
+            rng.range(0.2, 0.5),
+        ],
+        Effect::ThermalGrowth => vec![
+            rng.range(3000.0, 8000.0),
+            rng.range(8.0, 20.0),
+            rng.sign() * rng.range(50.0, 300.0),
+        ],
         Effect::LeadError => vec![
             rng.sign() * rng.range(2.0, 8.0),
             rng.sign() * rng.range(2.0, 8.0),
@@ -217,17 +225,19 @@ fn hide(e: Effect, rng: &mut Rng, m: &mut Model, n: usize, params: &mut BTreeMap
             // One event in each of `count` equal stretches, so both the fitting and the
             // held-out part see some.
             let stretch = n / count;
+            let mut events = vec![];
             for j in 0..count {
                 let i0 = j * stretch + rng.below(stretch.saturating_sub(1200).max(1));
                 let len = (rng.range(0.1, 0.5) / m.t3_s) as usize;
                 let f = rng.sign() * rng.range(150.0, 500.0);
-                m.events.push(ForceEvent {
+                events.push(ForceEvent {
                     i0,
                     i1: (i0 + len).min(n),
                     force_n: f,
                 });
             }
-            m.events.sort_by_key(|e| e.i0);
+            events.sort_by_key(|e| e.i0);
+            m.disturbance.push(Disturbance::Windows(events));
             params.insert("external_disturbance.events".into(), count as f64);
             vec![]
         }
@@ -256,9 +266,11 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
     let mut truth = Model {
         axis: nominal.axes[0].clone(),
         t3_s: t3,
+        t2_s: nominal.timing.t2_s,
         pos_source: PosSource::Scale,
         delay_s: 0.0,
-        events: vec![],
+        disturbance: vec![],
+        beam: None,
     };
     // The nominal is a little off the truth, as a real nominal always is.
     {
@@ -293,6 +305,9 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
         force_n: None,
         base_pos_m: None,
         resampled: false,
+        pos_source: None,
+        starts_at_rest: false,
+        beam_x_m: vec![],
     };
     let sim = simulate(&truth, &rec, n);
     let quantized = kinds.contains(&Effect::Quantization);

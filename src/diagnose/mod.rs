@@ -6,11 +6,17 @@
 //! change only preset parameters (plus command delay and external force, which sit outside
 //! the plant), so a fitted effect can be written back into the preset as it is.
 
+pub mod calibrate;
+pub mod candidates;
 pub mod effects;
+pub mod engine;
 pub mod eval;
-pub mod fit;
+pub mod evidence;
+pub mod lm;
 pub mod regimes;
 pub mod replay;
+pub mod report;
+pub mod select;
 
 use crate::preset::{Preset, PresetError};
 use crate::trace::{Mapping, Trace, TraceError};
@@ -179,6 +185,12 @@ pub struct RankEntry {
     pub score: f64,
     pub significant: bool,
     pub note: String,
+    /// The figures that support the effect besides the shrink (its signature test).
+    pub evidence: String,
+    /// Whether the signature test found the effect's signature.
+    pub evidence_pass: bool,
+    /// The signature test's figures by name (unit in the key).
+    pub evidence_figures: BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -211,8 +223,13 @@ pub struct Report {
     pub samples_holdout: usize,
     pub holdout_source: String,
     /// Constant time offset between the record and the model (positive: the machine lags
-    /// the model), from a least-squares fit of the residual to the velocity.
+    /// the model): the lag position and force share, in ms.
     pub time_offset_ms: f64,
+    /// The nominal's parameters re-fitted before any effect is tested, and any channel
+    /// logged off its instant (a measurement finding, removed before the effects).
+    pub calibration: calibrate::Calibration,
+    /// The calibration ratios after the selected effects were re-fitted with them.
+    pub calibration_final: Vec<(calibrate::CalParam, f64)>,
     /// Held-out samples left out of the candidates' scores as anomalous (residual far
     /// beyond anything in the fitting data).
     pub holdout_masked: usize,
@@ -275,21 +292,91 @@ pub fn diagnose(
             opts.holdout
         )));
     }
-    let nominal = Model {
-        axis: axis_params,
-        t3_s: preset.timing.t3_s,
-        pos_source: preset.diagnose.pos_source,
-        delay_s: 0.0,
-        events: vec![],
+    let nominal = engine::Cand {
+        model: Model {
+            axis: axis_params,
+            t3_s: preset.timing.t3_s,
+            t2_s: preset.timing.t2_s,
+            pos_source: main.pos_source.unwrap_or(preset.diagnose.pos_source),
+            delay_s: 0.0,
+            disturbance: vec![],
+            beam: replay::BeamModel::of(preset, &main.axis),
+        },
+        dist_val: vec![],
     };
-    let base_axis = base_axis_of(preset, &main.axis);
     let effects: Vec<Effect> = if opts.only.is_empty() {
         Effect::ALL.to_vec()
     } else {
         opts.only.clone()
     };
-    let split = fit::Split::new(main, validate, opts.holdout)?;
-    let engine = fit::Engine::new(&nominal, split, progress)?;
-    let outcome = engine.run(&effects, opts.max_effects)?;
-    Ok(fit::build_report(preset, &engine, outcome, base_axis))
+    // Calibrate (and find a skewed channel) on the record as it is.
+    let (eng0, nom_eval) = engine::Engine::new(
+        engine::Split::new(main, validate, opts.holdout)?,
+        &nominal,
+        progress,
+    )?;
+    (progress.report)(0.02, "calibrating the nominal");
+    let mut cal = calibrate::fit(&eng0, &nominal)?;
+    let j_nominal = eng0.j(&nom_eval.hold_pos, nom_eval.hold_force.as_deref());
+    let (main_d, val_d) = match &cal.skew {
+        Some(s) => (
+            calibrate::deskew(main, s),
+            validate.map(|v| calibrate::deskew(v, s)),
+        ),
+        None => (main.clone(), validate.cloned()),
+    };
+    let split = engine::Split::new(&main_d, val_d.as_ref(), opts.holdout)?;
+    let (mut eng, _) = engine::Engine::new(split, &cal.apply(&nominal), progress)?;
+    // The ratios were fitted alongside the channel shifts; the common lag is left to the
+    // delay candidate, so they are fitted again without it.
+    calibrate::refit_ratios(&eng, &nominal, &mut cal)?;
+    let calibrated = cal.apply(&nominal);
+    let cal_eval = eng.evaluate(&calibrated)?;
+    eng.set_scale(&cal_eval);
+    if let Some(path) = std::env::var_os("AXB_DUMP") {
+        dump_residuals(&eng, &cal_eval, std::path::Path::new(&path));
+    }
+    // In the nominal's normalisation, so the two figures compare.
+    cal.j_nominal = j_nominal;
+    cal.j_calibrated = eng0.j(&cal_eval.hold_pos, cal_eval.hold_force.as_deref());
+    let outcome = select::run(
+        &eng,
+        &cal,
+        &nominal,
+        &calibrated,
+        &cal_eval,
+        &effects,
+        opts.max_effects,
+    )?;
+    (progress.report)(1.0, "done");
+    Ok(report::build(
+        preset,
+        &eng,
+        report::Parts {
+            cal,
+            nom_eval,
+            cal_eval,
+            outcome,
+            base_axis: base_axis_of(preset, &main.axis),
+        },
+    ))
+}
+
+/// Development aid: writes the fitting part's measured signals and calibrated residuals
+/// (`AXB_DUMP=file.csv`).
+fn dump_residuals(eng: &engine::Engine, ev: &engine::Eval, path: &std::path::Path) {
+    let rec = eng.split.main;
+    let mut s = String::from("t,cmd,pos,force,r_pos,r_force\n");
+    for k in 0..ev.fit_pos.len() {
+        s += &format!(
+            "{},{},{},{},{},{}\n",
+            rec.t_s(k),
+            rec.cmd_m[k],
+            rec.pos_m[k],
+            rec.force_n.as_ref().map_or(0.0, |f| f[k]),
+            ev.fit_pos[k],
+            ev.fit_force.as_ref().map_or(0.0, |f| f[k])
+        );
+    }
+    let _ = std::fs::write(path, s);
 }

@@ -5,10 +5,11 @@
 //! command, so running the program again would only add the NC's own differences.
 
 use super::DiagnoseError;
-use crate::plant::AxisPlant;
-use crate::preset::{AxisParams, Feedback, PosSource};
-use crate::servo::{Servo, ServoInput};
+use crate::drive::{AxisLoop, LoopInput, SegmentAcc};
+use crate::plant::{Beam, PlantOut, Sensor, Start};
+use crate::preset::{AxisParams, Crossbeam, PosSource, Preset};
 use crate::trace::Trace;
+use crate::units::mm_to_m;
 
 /// One axis of a measured record on the model's uniform T3 grid, in SI units.
 #[derive(Debug, Clone)]
@@ -26,6 +27,15 @@ pub struct Record {
     pub base_pos_m: Option<Vec<f64>>,
     /// True when the record's sampling differed from T3 and it was interpolated.
     pub resampled: bool,
+    /// The sensor behind `pos` when the record itself says (`# pos_source: load` in an
+    /// axisbench trace); None: the preset's `diagnose.pos_source` decides.
+    pub pos_source: Option<PosSource>,
+    /// Positions of the crossbeam posts' X axes, in post order, when the replayed axis is a
+    /// post's Z: the beam's sag moves the tool tip the record measures.
+    pub beam_x_m: Vec<Vec<f64>>,
+    /// True when the record says it starts with the machine at rest at power-up (`# start:
+    /// rest` in an axisbench trace); otherwise the start state is estimated from the data.
+    pub starts_at_rest: bool,
 }
 
 impl Record {
@@ -42,7 +52,8 @@ impl Record {
     }
 
     /// Reads axis `axis` (and `base`, if given) of `trace` onto the T3 grid. `file` names the
-    /// record in errors.
+    /// record in errors. A record sampled other than at T3 is resampled; the grid's size is
+    /// computed and bounded ([`MAX_REPLAY_SAMPLES`]) before anything is allocated for it.
     pub fn from_trace(
         trace: &Trace,
         file: &str,
@@ -55,22 +66,7 @@ impl Record {
             reason,
         };
         let t = trace.t();
-        if t.len() < 10 {
-            return Err(bad(format!(
-                "{} samples; the diagnosis needs at least 10",
-                t.len()
-            )));
-        }
-        for (i, w) in t.windows(2).enumerate() {
-            if w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater) {
-                return Err(bad(format!(
-                    "t[s] does not increase at data row {} ({} after {})",
-                    i + 2,
-                    w[1],
-                    w[0]
-                )));
-            }
-        }
+        check_clock(t, t3_s).map_err(bad)?;
         let col = |sig: &str, required: bool| -> Result<Option<Vec<f64>>, DiagnoseError> {
             let name = format!("{axis}.{sig}");
             let Some(s) = trace.signal(&name) else {
@@ -88,7 +84,11 @@ impl Record {
                 return Ok(None);
             };
             // Traces hold mm; the model works in m.
-            let k = if s.unit == "mm" { 1e-3 } else { 1.0 };
+            let to_si: fn(f64) -> f64 = if s.unit == "mm" {
+                mm_to_m
+            } else {
+                std::convert::identity
+            };
             let mut v = Vec::with_capacity(s.data.len());
             for (i, &x) in s.data.iter().enumerate() {
                 if !x.is_finite() {
@@ -97,7 +97,7 @@ impl Record {
                         i + 1
                     )));
                 }
-                v.push(x * k);
+                v.push(to_si(x));
             }
             Ok(Some(v))
         };
@@ -119,11 +119,13 @@ impl Record {
                     .values(&format!("{b}.pos"))
                     .ok_or_else(|| bad(format!("no column '{b}.pos' for the base axis '{b}'")))?
                     .iter()
-                    .map(|x| x * 1e-3)
+                    .map(|&x| mm_to_m(x))
                     .collect::<Vec<f64>>(),
             ),
             None => None,
         };
+        let pos_source = trace.meta("pos_source").and_then(PosSource::from_name);
+        let starts_at_rest = trace.meta("start") == Some("rest");
         let n = t.len();
         let dt_mean = (t[n - 1] - t[0]) / (n - 1) as f64;
         let uniform = ((dt_mean - t3_s) / t3_s).abs() < 1e-3
@@ -140,15 +142,16 @@ impl Record {
                 force_n: force,
                 base_pos_m: base_pos,
                 resampled: false,
+                pos_source,
+                starts_at_rest,
+                beam_x_m: vec![],
             });
         }
-        let m = ((t[n - 1] - t[0]) / t3_s).floor() as usize + 1;
-        if m > 50_000_000 {
-            return Err(bad(format!(
-                "spans {:.1} s, which is {m} model periods of {t3_s} s; too long to replay",
-                t[n - 1] - t[0]
-            )));
-        }
+        let series = 3 + [comp.is_some(), force.is_some(), base_pos.is_some()]
+            .iter()
+            .filter(|&&b| b)
+            .count();
+        let m = grid_len(t, t3_s, series).map_err(bad)?;
         let grid: Vec<f64> = (0..m).map(|i| t[0] + i as f64 * t3_s).collect();
         let rs = |v: &Vec<f64>| resample(t, v, &grid);
         Ok(Record {
@@ -161,7 +164,38 @@ impl Record {
             force_n: force.as_ref().map(rs),
             base_pos_m: base_pos.as_ref().map(rs),
             resampled: true,
+            pos_source,
+            starts_at_rest,
+            beam_x_m: vec![],
         })
+    }
+
+    /// Reads axis `axis` of `trace` for `preset`: on the preset's T3 grid, with its base axis
+    /// (when the record has it) and, for a crossbeam post's Z, the posts' X positions.
+    pub fn for_preset(
+        trace: &Trace,
+        file: &str,
+        preset: &Preset,
+        axis: &str,
+    ) -> Result<Record, DiagnoseError> {
+        let base = super::base_axis_of(preset, axis)
+            .filter(|b| trace.signal(&format!("{b}.pos")).is_some());
+        let mut rec = Record::from_trace(trace, file, axis, base.as_deref(), preset.timing.t3_s)?;
+        let cb = &preset.crossbeam;
+        if cb.enabled && cb.posts.iter().any(|p| p.z_axis == axis) {
+            for p in &cb.posts {
+                let x = Record::from_trace(trace, file, &p.x_axis, None, preset.timing.t3_s)
+                    .map_err(|e| DiagnoseError::Record {
+                        file: file.to_owned(),
+                        reason: format!(
+                            "axis '{axis}' hangs from the crossbeam, whose sag depends on post axis '{}': {e}",
+                            p.x_axis
+                        ),
+                    })?;
+                rec.beam_x_m.push(x.pos_m);
+            }
+        }
+        Ok(rec)
     }
 
     /// A contiguous piece of the record (for splitting into fit and held-out parts).
@@ -177,8 +211,73 @@ impl Record {
             force_n: self.force_n.as_ref().map(s),
             base_pos_m: self.base_pos_m.as_ref().map(s),
             resampled: self.resampled,
+            pos_source: self.pos_source,
+            starts_at_rest: self.starts_at_rest && r.start == 0,
+            beam_x_m: self.beam_x_m.iter().map(s).collect(),
         }
     }
+}
+
+/// Most samples [`Record::from_trace`] resamples a record onto: 10 M T3 periods (1250 s at
+/// T3 = 125 µs). Each resampled series is 80 MB at this size, and a record has up to five
+/// plus the grid.
+pub const MAX_REPLAY_SAMPLES: usize = 10_000_000;
+
+/// The checks on a record's clock before a grid is laid over it: at least 10 samples, a
+/// positive T3, and strictly increasing times.
+fn check_clock(t: &[f64], t3_s: f64) -> Result<(), String> {
+    if t.len() < 10 {
+        return Err(format!(
+            "{} samples; the diagnosis needs at least 10",
+            t.len()
+        ));
+    }
+    if !(t3_s.is_finite() && t3_s > 0.0) {
+        return Err(format!("T3 = {t3_s} s must be a positive time"));
+    }
+    for (i, w) in t.windows(2).enumerate() {
+        if w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater) {
+            return Err(format!(
+                "t[s] does not increase at data row {} ({} after {})",
+                i + 2,
+                w[1],
+                w[0]
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Samples of the T3 grid over the times `t` (increasing), computed in floating point and
+/// bounded by [`MAX_REPLAY_SAMPLES`] before anything is allocated. When too many: the
+/// estimate, the memory it would take for `series` resampled series, the limit, what to
+/// change, and the largest time step (the usual cause is one wrong time stamp).
+fn grid_len(t: &[f64], t3_s: f64, series: usize) -> Result<usize, String> {
+    let (Some(&first), Some(&last)) = (t.first(), t.last()) else {
+        return Err("has no samples".into());
+    };
+    let span_s = last - first;
+    let periods = (span_s / t3_s).floor();
+    if !(periods.is_finite() && periods >= 0.0) {
+        return Err(format!(
+            "spans {first} s to {last} s, which makes no grid of T3 = {t3_s} s"
+        ));
+    }
+    let samples = periods + 1.0;
+    if samples > MAX_REPLAY_SAMPLES as f64 {
+        let (row, step) = t
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .enumerate()
+            .fold((0, 0.0), |m, (i, d)| if d > m.1 { (i + 2, d) } else { m });
+        let gb = samples * (series as f64) * 8.0 / 1024f64.powi(3);
+        return Err(format!(
+            "spans {span_s:.6} s, which is {samples:.0} periods of T3 = {t3_s} s ({gb:.1} GiB to resample {series} series); the limit is {MAX_REPLAY_SAMPLES} samples (MAX_REPLAY_SAMPLES): cut the record to at most {:.1} s, or check its time stamps (the largest step is {step} s, at data row {row})",
+            (MAX_REPLAY_SAMPLES - 1) as f64 * t3_s
+        ));
+    }
+    // Whole, non-negative and at most MAX_REPLAY_SAMPLES: the conversion is exact.
+    Ok(samples as usize)
 }
 
 /// Linear interpolation of (t, v) at the sorted `grid` times.
@@ -196,34 +295,248 @@ fn resample(t: &[f64], v: &[f64], grid: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-/// A window of constant external force on the table (the disturbance candidate).
+/// The crossbeam the replayed axis's tool post hangs from.
+#[derive(Debug, Clone)]
+pub struct BeamModel {
+    /// The beam (span, stiffness, self-weight, post weights).
+    pub crossbeam: Crossbeam,
+    /// Which of its posts carries the replayed axis.
+    pub post: usize,
+}
+
+impl BeamModel {
+    /// The beam of `preset` if `axis` is one of its posts' Z axes.
+    pub fn of(preset: &Preset, axis: &str) -> Option<BeamModel> {
+        let cb = &preset.crossbeam;
+        let post = cb.posts.iter().position(|p| p.z_axis == axis)?;
+        cb.enabled.then(|| BeamModel {
+            crossbeam: cb.clone(),
+            post,
+        })
+    }
+
+    /// The beam with its posts' X axes numbered 0, 1, … in post order.
+    fn beam(&self) -> Option<Beam> {
+        let posts = &self.crossbeam.posts;
+        Beam::new(&self.crossbeam, |name| {
+            posts
+                .iter()
+                .position(|p| p.x_axis == name || p.z_axis == name)
+        })
+    }
+}
+
+/// The sag of the replayed axis's post at each sample (zeros without a beam), m.
+fn sag_series(model: &Model, rec: &Record, n: usize) -> Vec<f64> {
+    let (Some(bm), false) = (&model.beam, rec.beam_x_m.is_empty()) else {
+        return vec![0.0; n];
+    };
+    let Some(beam) = bm.beam() else {
+        return vec![0.0; n];
+    };
+    let mut x = vec![0.0; rec.beam_x_m.len()];
+    let mut out = [0.0; 2];
+    (0..n)
+        .map(|k| {
+            for (xi, col) in x.iter_mut().zip(&rec.beam_x_m) {
+                *xi = col[k];
+            }
+            beam.sag_m(&x, &mut out);
+            out.get(bm.post).copied().unwrap_or(0.0)
+        })
+        .collect()
+}
+
+/// A window of constant external force on the table (a burst of the disturbance
+/// candidate), in samples of the record it belongs to.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ForceEvent {
+    /// First sample the force acts in.
     pub i0: usize,
+    /// First sample after it.
     pub i1: usize,
+    /// The force on the table, N.
     pub force_n: f64,
+}
+
+/// An external force on the table that no state of the axis explains: what the
+/// `external_disturbance` candidate adds. Times are in the record's own clock.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Disturbance {
+    /// Windows of constant force (bursts).
+    Windows(Vec<ForceEvent>),
+    /// A square wave between `offset_n − amplitude_n` and `offset_n + amplitude_n`, high for
+    /// `duty` of each period, rising at `first_rise_s` (+ k periods).
+    Square {
+        /// Period, s.
+        period_s: f64,
+        /// Share of the period at the high level, 0..1.
+        duty: f64,
+        /// Half the step height, N.
+        amplitude_n: f64,
+        /// Mean level, N.
+        offset_n: f64,
+        /// A rising edge, s.
+        first_rise_s: f64,
+    },
+    /// A sine `offset_n + amplitude_n·sin(2π(t − first_rise_s)/period_s)`.
+    Sine {
+        /// Period, s.
+        period_s: f64,
+        /// Amplitude, N.
+        amplitude_n: f64,
+        /// Mean level, N.
+        offset_n: f64,
+        /// An upward zero crossing, s.
+        first_rise_s: f64,
+    },
+    /// A piecewise-constant force: `levels[i]` from `times_s[i]` on (0 before the first).
+    Steps {
+        /// Change times, s, increasing.
+        times_s: Vec<f64>,
+        /// The level from each change on, N.
+        levels_n: Vec<f64>,
+    },
+}
+
+impl Disturbance {
+    /// The force at time `t_s` (windows are added by [`disturbance_series`] directly).
+    fn force_at(&self, t_s: f64) -> f64 {
+        match self {
+            Disturbance::Windows(_) => 0.0,
+            Disturbance::Square {
+                period_s,
+                duty,
+                amplitude_n,
+                offset_n,
+                first_rise_s,
+            } => {
+                let u = ((t_s - first_rise_s) / period_s).rem_euclid(1.0);
+                offset_n
+                    + if u < *duty {
+                        *amplitude_n
+                    } else {
+                        -amplitude_n
+                    }
+            }
+            Disturbance::Sine {
+                period_s,
+                amplitude_n,
+                offset_n,
+                first_rise_s,
+            } => {
+                offset_n
+                    + amplitude_n * (std::f64::consts::TAU * (t_s - first_rise_s) / period_s).sin()
+            }
+            Disturbance::Steps { times_s, levels_n } => {
+                let i = times_s.partition_point(|&x| x <= t_s);
+                if i == 0 { 0.0 } else { levels_n[i - 1] }
+            }
+        }
+    }
+}
+
+/// The summed external force at each of `n` samples of `rec`.
+pub fn disturbance_series(d: &[Disturbance], rec: &Record, n: usize) -> Vec<f64> {
+    let mut out = vec![0.0; n];
+    for dist in d {
+        if let Disturbance::Windows(ev) = dist {
+            for e in ev {
+                for f in out.iter_mut().take(e.i1.min(n)).skip(e.i0) {
+                    *f += e.force_n;
+                }
+            }
+        } else {
+            for (k, f) in out.iter_mut().enumerate() {
+                *f += dist.force_at(rec.t_s(k));
+            }
+        }
+    }
+    out
 }
 
 /// Everything a candidate can change: the axis parameters plus what lies outside the
 /// plant (command delay, external forces).
 #[derive(Debug, Clone)]
 pub struct Model {
+    /// The axis as the candidate has it.
     pub axis: AxisParams,
+    /// Amplifier period T3, s.
     pub t3_s: f64,
+    /// NC → amplifier period T2, s: the acceleration feed-forward takes one value per T2.
+    pub t2_s: f64,
+    /// Which sensor the record's `pos` comes from.
     pub pos_source: PosSource,
+    /// Command delay, s (fractions of a sample interpolate).
     pub delay_s: f64,
-    pub events: Vec<ForceEvent>,
+    /// External forces on the table.
+    pub disturbance: Vec<Disturbance>,
+    /// The crossbeam, when the axis is a tool post's Z.
+    pub beam: Option<BeamModel>,
 }
 
 /// Simulated signals, sample for sample with the record.
 #[derive(Debug, Clone, Default)]
 pub struct SimOut {
+    /// The simulated reading of the record's position sensor, m.
     pub pos_m: Vec<f64>,
+    /// The simulated load-side motor force, N.
     pub force_n: Vec<f64>,
+}
+
+/// Below this initial speed the record starts from rest, m/s.
+const REST_SPEED_MPS: f64 = 1e-5;
+
+/// The record's command, delayed by `delay_s` (linear interpolation between samples; the
+/// first sample is held before the record starts).
+fn delayed_cmd(rec: &Record, delay_s: f64, n: usize) -> Vec<f64> {
+    let d = delay_s / rec.t3_s;
+    if d == 0.0 {
+        return rec.cmd_m[..n].to_vec();
+    }
+    let last = (rec.len() - 1) as f64;
+    (0..n)
+        .map(|k| {
+            let u = (k as f64 - d).clamp(0.0, last);
+            let i = u.floor() as usize;
+            let f = u - i as f64;
+            match rec.cmd_m.get(i + 1) {
+                Some(&next) => rec.cmd_m[i] + (next - rec.cmd_m[i]) * f,
+                None => rec.cmd_m[i],
+            }
+        })
+        .collect()
+}
+
+/// The plant's state at the first sample, from the measured record: the position sensor
+/// reads the first measured position; the velocity is the second-order forward difference
+/// of the measured positions.
+///
+/// A record that says it starts at power-up (axisbench's own traces) starts from rest: its
+/// command is already moving in the first sample while the axis has not been driven yet,
+/// and a fast loop moves it within that sample, so the data alone cannot tell the two apart.
+fn initial_state(model: &Model, rec: &Record) -> Start {
+    let p = &rec.pos_m;
+    let v_pos = if p.len() >= 3 && !rec.starts_at_rest {
+        (-3.0 * p[0] + 4.0 * p[1] - p[2]) / (2.0 * rec.t3_s)
+    } else {
+        0.0
+    };
+    let moving = v_pos.abs() >= REST_SPEED_MPS;
+    Start {
+        sensor: Sensor::from(model.pos_source),
+        reading_m: p[0],
+        vel_mps: if moving { v_pos } else { 0.0 },
+    }
 }
 
 /// Replays `rec[..n]` through `model`. Row k holds the position at the start of period k
 /// and the force the amplifier put out during it, as the machine's own trace does.
+///
+/// The record's first row is taken as the first T3 of a T2 period (axisbench's traces start
+/// at t = 0 on a T2 boundary). The command before the record is extrapolated back by one
+/// sample; a record that starts from rest starts its acceleration feed-forward from rest
+/// too, one that starts moving from the command's first velocity.
 pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
     let n = n.min(rec.len());
     let mut out = SimOut {
@@ -235,81 +548,51 @@ pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
     }
     let t3 = model.t3_s;
     let a = &model.axis;
-    let x0 = rec.pos_m[0];
-    let mut plant = AxisPlant::new(a, t3, x0);
-    let mut servo = Servo::new(a, t3, rec.cmd_m[0]);
-    // Start moving when the record does, so a record cut from a run does not begin with a
-    // start-up transient the machine never had.
-    if n > 2 {
-        let v0 = (rec.cmd_m[1] - rec.cmd_m[0]) / t3;
-        plant.v_m = v0;
-        plant.v_t = v0;
-    }
-    let d = model.delay_s / t3;
-    let cmd_at = |k: usize| -> f64 {
-        if d == 0.0 {
-            return rec.cmd_m[k];
-        }
-        let u = (k as f64 - d).clamp(0.0, (rec.len() - 1) as f64);
-        let i = u.floor() as usize;
-        let f = u - i as f64;
-        if i + 1 < rec.len() {
-            rec.cmd_m[i] + (rec.cmd_m[i + 1] - rec.cmd_m[i]) * f
-        } else {
-            rec.cmd_m[i]
-        }
+    let cmd = delayed_cmd(rec, model.delay_s, n);
+    let comp = |k: usize| rec.comp_m.as_ref().map_or(0.0, |v| v[k]);
+    let sag = sag_series(model, rec, n);
+    let mut start = initial_state(model, rec);
+    start.reading_m -= sag[0];
+    let c1 = cmd.get(1).copied().unwrap_or(cmd[0]);
+    let before = 2.0 * cmd[0] - c1;
+    let n23 = crate::preset::ratio(model.t2_s, t3).unwrap_or(1) as usize;
+    let mut seg = if start.vel_mps == 0.0 {
+        SegmentAcc::new(model.t2_s, before)
+    } else {
+        SegmentAcc::moving(model.t2_s, before, (c1 - cmd[0]) / t3)
     };
-    let inv_t3_sq = 1.0 / (t3 * t3);
-    let mut ev = model.events.iter().peekable();
-    let mut f_ext = 0.0;
-    let mut cur_end = usize::MAX;
-    let (mut c1, mut c2) = (cmd_at(0), cmd_at(0));
+    let mut axis = AxisLoop::new(
+        a,
+        t3,
+        start,
+        before,
+        before + comp(0),
+        crate::comp::servo_comps(0, a),
+    );
+    let ext = disturbance_series(&model.disturbance, rec, n);
     for k in 0..n {
-        let c = cmd_at(k);
-        let acc = if k >= 2 {
-            (c - 2.0 * c1 + c2) * inv_t3_sq
-        } else {
-            0.0
-        };
-        c2 = c1;
-        c1 = c;
-        let comp = rec.comp_m.as_ref().map_or(0.0, |v| v[k]);
-        let o = &plant.out;
-        out.pos_m.push(match model.pos_source {
-            PosSource::Load => o.pos_m,
-            PosSource::MotorEncoder => o.motor_enc_m,
-            PosSource::Scale => o.scale_m,
+        if k % n23 == 0 {
+            seg.next_segment(cmd[(k + n23 - 1).min(n - 1)]);
+        }
+        out.pos_m
+            .push(reading(model.pos_source, axis.plant().out()) + sag[k]);
+        let force = axis.step(&LoopInput {
+            t_s: rec.t_s(k),
+            cmd_raw_m: cmd[k],
+            cmd_nc_m: cmd[k] + comp(k),
+            acc_cmd_mps2: seg.acc_mps2(),
+            ext_force_n: ext[k],
         });
-        let fb = match servo.feedback {
-            Feedback::Motor => o.motor_enc_m,
-            Feedback::Scale => o.scale_m,
-        };
-        let input = ServoInput {
-            cmd_m: c + comp,
-            ff_cmd_m: c,
-            fb_pos_m: fb,
-            motor_pos_m: o.motor_enc_m,
-            vel_add_mps: 0.0,
-            force_ff_n: 0.0,
-            acc_cmd_mps2: acc,
-        };
-        let force = servo.step(&input);
         out.force_n.push(force);
-        if k >= cur_end {
-            f_ext = 0.0;
-            cur_end = usize::MAX;
-        }
-        while let Some(e) = ev.peek() {
-            if e.i0 > k {
-                break;
-            }
-            if e.i1 > k {
-                f_ext = e.force_n;
-                cur_end = e.i1;
-            }
-            ev.next();
-        }
-        plant.step(force + f_ext);
     }
     out
+}
+
+/// What the record's position sensor reads from the plant.
+fn reading(src: PosSource, o: &PlantOut) -> f64 {
+    match src {
+        PosSource::Load => o.pos_m,
+        PosSource::MotorEncoder => o.motor_enc_m,
+        PosSource::Scale => o.scale_m,
+    }
 }

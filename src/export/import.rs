@@ -17,9 +17,13 @@ pub fn import(from: Target, input: &Path, base: &LoadedPreset) -> Result<Preset,
     match from {
         Target::Ron => preset::load(&path.display().to_string())
             .map(|lp| lp.preset)
-            .map_err(|e| ExportError::Input {
-                file: path.display().to_string(),
-                reason: e.to_string(),
+            .map_err(|e| match e {
+                preset::PresetError::Io { file, source } => ExportError::Read {
+                    file,
+                    reason: source.to_string(),
+                },
+                // The preset's own message names the file (and line, field).
+                other => ExportError::Preset(other.to_string()),
             }),
         Target::Linuxcnc => super::linuxcnc::import(&path, &base.preset),
         other => Err(ExportError::Input {
@@ -50,17 +54,15 @@ fn resolve(from: Target, input: &Path) -> Result<PathBuf, ExportError> {
     Ok(input.to_path_buf())
 }
 
-/// Writes `p` to `out` (atomically) and the programs it names next to it, taken from
-/// `programs_from` when missing there.
+/// Writes `p` to `out` and the programs it names next to it (taken from `programs_from`
+/// when missing there), all together or not at all: on any error the folder is left as it
+/// was. A program named with a folder part (`sub/a.ngc`) cannot join that unit and is
+/// written on its own, atomically, afterwards.
 pub fn write_preset(
     p: &Preset,
     out: &Path,
     programs_from: &LoadedPreset,
 ) -> Result<(), ExportError> {
-    let io = |file: &Path| {
-        let file = file.display().to_string();
-        move |source| ExportError::Io { file, source }
-    };
     let ron = p.to_ron().map_err(|e| ExportError::Input {
         file: out.display().to_string(),
         reason: e.to_string(),
@@ -69,22 +71,44 @@ pub fn write_preset(
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let mut texts = Vec::new();
-    for name in &p.scenario.programs {
-        let dest = dir.join(name);
-        if !dest.exists() {
-            let text = programs_from
-                .program_text(name)
-                .map_err(|e| ExportError::Input {
-                    file: name.clone(),
-                    reason: e.to_string(),
-                })?;
-            texts.push((dest, text));
+    let Some(name) = out.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Err(ExportError::Input {
+            file: out.display().to_string(),
+            reason: "not a file name".into(),
+        });
+    };
+    let mut unit = vec![(name, ron.into_bytes())];
+    let mut apart = Vec::new();
+    for prog in &p.scenario.programs {
+        let dest = dir.join(prog);
+        if dest.exists() || unit.iter().any(|(n, _)| n == prog) {
+            continue;
+        }
+        let text = programs_from
+            .program_text(prog)
+            .map_err(|e| ExportError::Input {
+                file: prog.clone(),
+                reason: e.to_string(),
+            })?;
+        if Path::new(prog)
+            .file_name()
+            .is_some_and(|f| f == prog.as_str())
+        {
+            unit.push((prog.clone(), text.into_bytes()));
+        } else {
+            apart.push((dest, text));
         }
     }
-    crate::fsutil::write_atomic(out, ron.as_bytes()).map_err(io(out))?;
-    for (dest, text) in texts {
-        crate::fsutil::write_atomic(&dest, text.as_bytes()).map_err(io(&dest))?;
+    crate::fsutil::write_all_atomic(&dir, &unit).map_err(ExportError::Write)?;
+    for (dest, text) in apart {
+        crate::fsutil::write_atomic(&dest, text.as_bytes()).map_err(|e| {
+            ExportError::Write(crate::fsutil::FsError {
+                op: "write",
+                path: dest.clone(),
+                reason: e.to_string(),
+                kind: e.kind(),
+            })
+        })?;
     }
     Ok(())
 }

@@ -1,9 +1,16 @@
 //! Export of a tuned preset to controllers, and import back.
 //!
-//! An export renders every file of a target in memory, checks them, simulates what the
-//! target cannot carry and writes the mapping report; only when all of that succeeded are
-//! the files written (each atomically). A preset that breaks a target's limits gives one
-//! error listing every violation, and nothing is written.
+//! Every target builds ONE list of entries ([`entry::Entry`]: the preset field in the dot
+//! dialect, its value with unit, the controller lines it becomes, how faithfully); the
+//! files and the mapping report are both rendered from that list, so they cannot disagree.
+//!
+//! An export renders every file in memory and checks it: the target's own limits, the
+//! physical ranges our import enforces ([`ranges`]), and — for LinuxCNC and RON — the
+//! rendered files read back by our own importer (an export the import would reject is
+//! refused, naming the preset field, its value and why). Only then are the approximations
+//! simulated for the report, and only when all of that succeeded are the files written,
+//! all together or not at all ([`crate::fsutil::write_all_atomic`]). A preset that breaks
+//! a rule gives one error listing every violation, and nothing is written.
 //!
 //! Targets: [`Target::Ron`] (axisbench's own format, lossless), [`linuxcnc`] (LinuxCNC 2.9
 //! INI + comp files), [`siemens`] (SINUMERIK 840D sl machine/setting data and CEC tables),
@@ -13,33 +20,51 @@
 //! What every target shares is derived here, once: the axis limits a controller needs
 //! (velocity, acceleration, following-error limits), the travel a position table must
 //! cover, and the pitch-error table that cancels the preset's measured lead error.
+#![warn(missing_docs)]
 
 pub mod beckhoff;
+pub mod entry;
 pub mod fanuc;
 pub mod heidenhain;
 pub mod import;
 pub mod linuxcnc;
+pub mod ranges;
 pub mod report;
+mod shared;
 pub mod siemens;
+mod tables;
 
 use std::path::{Path, PathBuf};
 
-use crate::preset::{AccDecKind, AxisParams, LeadError, Preset};
+use crate::preset::{AccDecKind, AxisParams, Preset};
+use crate::units::mm_to_m;
 
-pub use report::{Entry, ErrFigures, Report, Status};
+pub use entry::{Entry, Put, Status};
+pub use report::{ErrFigures, Report};
+pub use tables::{PitchTable, equidistant, lead_error_um, pitch_table, residual_um};
+
+use entry::{FileSpec, Plan, RenderedFile, dot_path};
+use report::Pending;
 
 /// Where an export goes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Target {
+    /// axisbench's own RON preset (lossless).
     Ron,
+    /// LinuxCNC 2.9 INI + comp files.
     Linuxcnc,
+    /// Siemens SINUMERIK 840D sl.
     Siemens,
+    /// HEIDENHAIN TNC.
     Heidenhain,
+    /// Beckhoff TwinCAT CNC (ISG kernel).
     Beckhoff,
+    /// FANUC Series 0i/30i.
     Fanuc,
 }
 
 impl Target {
+    /// Every target, in the order the command line lists them.
     pub const ALL: [Target; 6] = [
         Target::Ron,
         Target::Linuxcnc,
@@ -89,14 +114,17 @@ impl std::str::FromStr for Target {
     }
 }
 
-/// One broken rule: where (field, file, line) and why.
+/// One broken rule: where (preset field in the dot dialect, or file and line) and why.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Violation {
+    /// The preset field (`axes.x.lead_error.table`) or file location (`joint0.comp:3`).
     pub location: String,
+    /// What is wrong, with the value and the rule it breaks.
     pub reason: String,
 }
 
 impl Violation {
+    /// A violation at `location`.
     pub fn new(location: impl Into<String>, reason: impl Into<String>) -> Violation {
         Violation {
             location: location.into(),
@@ -111,32 +139,61 @@ impl std::fmt::Display for Violation {
     }
 }
 
+/// At most this many violations are listed one by one; a broken file can have hundreds of
+/// the same finding.
+const LISTED: usize = 40;
+
 fn list(v: &[Violation]) -> String {
-    v.iter()
-        .map(|e| format!("  - {e}"))
-        .collect::<Vec<_>>()
-        .join("\n")
+    let mut lines: Vec<String> = v.iter().take(LISTED).map(|e| format!("  - {e}")).collect();
+    if v.len() > LISTED {
+        lines.push(format!("  … and {} more", v.len() - LISTED));
+    }
+    lines.join("\n")
 }
 
+/// Why an export or import failed. Each variant prints its whole message once (no error
+/// source is chained, so no OS text is repeated).
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
+    /// The preset breaks the target's limits, the physical ranges, or our own import.
     #[error("the preset cannot be exported to {target}; nothing was written. {} violation(s):\n{}", .violations.len(), list(.violations))]
     Violations {
+        /// The controller.
         target: String,
+        /// Every broken rule.
         violations: Vec<Violation>,
     },
+    /// An input that is wrong as a whole (not a folder with the expected file, a bad option).
     #[error("{file}: {reason}")]
-    Input { file: String, reason: String },
+    Input {
+        /// The file or option.
+        file: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An imported file with problems, every one listed.
     #[error("{}: {} problem(s):\n{}", .file, .violations.len(), list(.violations))]
     Import {
+        /// The file imported.
         file: String,
+        /// Every problem, by file, section/key or line.
         violations: Vec<Violation>,
     },
-    #[error("cannot write {file}: {source}")]
-    Io {
+    /// A RON file that is not a valid preset; the message names the file, line or field.
+    #[error("{0}")]
+    Preset(String),
+    /// A file could not be read.
+    #[error("cannot read {file}: {reason}")]
+    Read {
+        /// The file.
         file: String,
-        source: std::io::Error,
+        /// The OS's reason.
+        reason: String,
     },
+    /// Writing failed; the folder was left as it was.
+    #[error("{0}; nothing was changed in the folder")]
+    Write(crate::fsutil::FsError),
+    /// The report's simulation could not run.
     #[error("simulation for the mapping report failed: {0}")]
     Simulation(String),
 }
@@ -155,16 +212,12 @@ pub const DEFAULT_HORIZON_S: f64 = 60.0;
 /// Everything an export produces, in memory, before anything is written.
 #[derive(Debug, Clone)]
 pub struct Export {
+    /// The controller.
     pub target: Target,
     /// (file name relative to the output folder, contents).
     pub files: Vec<(String, String)>,
+    /// The mapping report, from the same entries as the files.
     pub report: Report,
-}
-
-/// Files of a target plus the report entries; the simulations are run afterwards.
-pub(crate) struct Rendered {
-    pub files: Vec<(String, String)>,
-    pub entries: Vec<report::Pending>,
 }
 
 /// Renders, checks and simulates an export of `preset` (with its scenario programs as
@@ -175,126 +228,149 @@ pub fn export(
     target: Target,
     opts: &ExportOptions,
 ) -> Result<Export, ExportError> {
-    let mut violations: Vec<Violation> = preset
-        .validate()
+    let refuse = |violations: Vec<Violation>| ExportError::Violations {
+        target: target.title().into(),
+        violations,
+    };
+    let mut violations: Vec<Violation> = crate::machine::check(preset)
         .into_iter()
-        .map(|e| Violation::new(e.path, e.reason))
+        .map(|e| Violation::new(dot_path(&e.path), e.reason))
         .collect();
     if !violations.is_empty() {
         // Target limits are still checked on what can be checked, so the user sees every
         // problem at once.
         let ctx = Ctx::new(preset, None);
-        let _ = render(&ctx, target, programs, &mut violations);
-        return Err(ExportError::Violations {
-            target: target.title().into(),
-            violations,
-        });
+        if let Err(v) = plan(&ctx, target, programs) {
+            violations.extend(v);
+        }
+        return Err(refuse(violations));
     }
     let sim = report::Sim::new(preset, programs, opts.horizon_s)?;
     let ctx = Ctx::new(preset, Some(&sim));
-    let rendered = render(&ctx, target, programs, &mut violations);
-    let Some(rendered) = rendered.filter(|_| violations.is_empty()) else {
-        return Err(ExportError::Violations {
-            target: target.title().into(),
-            violations,
-        });
-    };
-    let mut report = report::finish(&ctx, &sim, target, rendered.entries)?;
-    report.files = rendered.files.iter().map(|(n, _)| n.clone()).collect();
+    let (plan, files) = checked_plan(&ctx, target, programs).map_err(refuse)?;
+    let names = files.iter().map(|f| f.name.clone()).collect();
+    let report = report::finish(&ctx, &sim, target, plan.entries, names)?;
     Ok(Export {
         target,
-        files: rendered.files,
+        files: files.into_iter().map(|f| (f.name, f.text)).collect(),
         report,
     })
 }
 
-fn render(
+/// The plan and its rendered files, or every violation: the target's limits, the physical
+/// ranges, and what our own import says about the rendered files.
+fn checked_plan(
     ctx: &Ctx,
     target: Target,
     programs: &[(String, String)],
-    violations: &mut Vec<Violation>,
-) -> Option<Rendered> {
-    let r = match target {
-        Target::Ron => ron_files(ctx.preset, programs),
+) -> Result<(Plan, Vec<RenderedFile>), Vec<Violation>> {
+    let ranges = if target == Target::Ron {
+        Vec::new()
+    } else {
+        ranges::check_export(ctx)
+    };
+    let plan = match plan(ctx, target, programs) {
+        Ok(p) if ranges.is_empty() => p,
+        Ok(_) => return Err(ranges),
+        Err(mut v) => {
+            v.extend(ranges);
+            return Err(v);
+        }
+    };
+    let files = plan.render()?;
+    let back = match target {
+        Target::Linuxcnc => linuxcnc::self_check(ctx, &files, &plan.entries),
+        Target::Ron => ron_self_check(ctx.preset, &files),
+        _ => Vec::new(),
+    };
+    if back.is_empty() {
+        Ok((plan, files))
+    } else {
+        Err(back)
+    }
+}
+
+/// The target's plan: its files' layout and its one list of entries.
+fn plan(ctx: &Ctx, target: Target, programs: &[(String, String)]) -> Result<Plan, Vec<Violation>> {
+    match target {
+        Target::Ron => ron_plan(ctx.preset, programs),
         Target::Linuxcnc => linuxcnc::render(ctx),
         Target::Siemens => siemens::render(ctx),
         Target::Heidenhain => heidenhain::render(ctx),
         Target::Beckhoff => beckhoff::render(ctx),
         Target::Fanuc => fanuc::render(ctx),
-    };
-    match r {
-        Ok(r) => Some(r),
-        Err(v) => {
-            violations.extend(v);
-            None
-        }
     }
 }
 
 /// The RON target: the preset itself (f64 written shortest-round-trip, so lossless) and its
 /// programs, so the folder loads on its own.
-fn ron_files(p: &Preset, programs: &[(String, String)]) -> Result<Rendered, Vec<Violation>> {
+fn ron_plan(p: &Preset, programs: &[(String, String)]) -> Result<Plan, Vec<Violation>> {
     let ron = p
         .to_ron()
         .map_err(|e| vec![Violation::new("preset", e.to_string())])?;
-    let mut files = vec![("preset.ron".to_owned(), ron)];
-    for (name, text) in programs {
-        files.push((name.clone(), text.clone()));
+    let mut files = vec![FileSpec::new("preset.ron", "", "").raw().always()];
+    let mut entries = vec![
+        Pending::mapped("(the whole preset)", format!("preset '{}'", p.name))
+            .note("lossless: every field, f64 in shortest round-trip form")
+            .put(Put::new("preset.ron", "", "", ron)),
+    ];
+    for (k, (name, text)) in programs.iter().enumerate() {
+        files.push(FileSpec::new(name.clone(), "", "").raw().always());
+        entries.push(
+            Pending::mapped(format!("scenario.programs.{k}"), name.clone())
+                .note("the program file, as it is")
+                .put(Put::new(name.clone(), "", "", text.clone())),
+        );
     }
-    let entries = vec![report::Pending::mapped(
-        "the whole preset",
-        "preset.ron",
-        "lossless: every field, f64 in shortest round-trip form",
-    )];
-    Ok(Rendered { files, entries })
+    Ok(Plan { files, entries })
+}
+
+/// The rendered `preset.ron` read back as the RON import reads it: it must load, pass
+/// every check and equal the preset.
+fn ron_self_check(p: &Preset, files: &[RenderedFile]) -> Vec<Violation> {
+    let Some(f) = files.iter().find(|f| f.name == "preset.ron") else {
+        return vec![Violation::new("preset.ron", "internal: not rendered")];
+    };
+    match Preset::from_ron(&f.text, "preset.ron") {
+        Ok(back) if back == *p => Vec::new(),
+        Ok(_) => vec![Violation::new(
+            "preset.ron",
+            "internal: the written preset does not read back equal",
+        )],
+        Err(e) => vec![Violation::new(
+            "preset.ron",
+            format!("our own import rejects it: {e}"),
+        )],
+    }
 }
 
 impl Export {
-    /// Writes the files and the report into `dir` (created if missing). Everything was
+    /// Writes the files and the report into `dir` (created if missing), all together or
+    /// not at all: on any error the folder is left exactly as it was. Everything was
     /// rendered and checked before, so a failure here is an I/O failure.
     pub fn write(&self, dir: &Path) -> Result<Vec<PathBuf>, ExportError> {
-        let io = |p: &Path| {
-            let file = p.display().to_string();
-            move |source| ExportError::Io { file, source }
-        };
-        let created = !dir.exists();
-        std::fs::create_dir_all(dir).map_err(io(dir))?;
-        let mut all: Vec<(String, String)> = self.files.clone();
-        all.push(("mapping_report.md".into(), self.report.to_markdown()));
-        all.push(("mapping_report.json".into(), self.report.to_json()));
-        // Every file is first written (and synced) into a staging folder inside `dir`;
-        // only when all of them are there are they renamed into place, so a failure
-        // (disk full, permissions) leaves the folder as it was.
-        let stage = dir.join(format!(".axisbench-export.{}", std::process::id()));
-        let staged = (|| -> Result<(), ExportError> {
-            std::fs::create_dir_all(&stage).map_err(io(&stage))?;
-            for (name, text) in &all {
-                let p = stage.join(name);
-                crate::fsutil::write_atomic(&p, text.as_bytes()).map_err(io(&p))?;
-            }
-            Ok(())
-        })();
-        if let Err(e) = staged {
-            let _ = std::fs::remove_dir_all(&stage);
-            if created {
-                let _ = std::fs::remove_dir(dir);
-            }
-            return Err(e);
-        }
-        let mut written = Vec::new();
-        for (name, _) in &all {
-            let to = dir.join(name);
-            std::fs::rename(stage.join(name), &to).map_err(io(&to))?;
-            written.push(to);
-        }
-        let _ = std::fs::remove_dir_all(&stage);
-        Ok(written)
+        let mut all: Vec<(String, Vec<u8>)> = self
+            .files
+            .iter()
+            .map(|(n, t)| (n.clone(), t.clone().into_bytes()))
+            .collect();
+        all.push((
+            "mapping_report.md".into(),
+            self.report.to_markdown().into_bytes(),
+        ));
+        all.push((
+            "mapping_report.json".into(),
+            self.report.to_json().into_bytes(),
+        ));
+        crate::fsutil::write_all_atomic(dir, &all).map_err(ExportError::Write)
     }
 }
 
 /// What every target derives from the preset.
 pub(crate) struct Ctx<'a> {
+    /// The preset exported.
     pub preset: &'a Preset,
+    /// Per axis: limits and travel.
     pub axes: Vec<AxisDerived>,
     /// Per axis: the thermal correction F' (m) at the end of the report's baseline run.
     pub thermal_end_m: Vec<Option<f64>>,
@@ -325,7 +401,9 @@ impl<'a> Ctx<'a> {
     }
 }
 
+/// What every target derives for one axis.
 pub(crate) struct AxisDerived {
+    /// The limits a controller needs.
     pub limits: AxisLimits,
     /// (lowest, highest) position a position table must cover, mm.
     pub travel_mm: (f64, f64),
@@ -339,6 +417,7 @@ pub struct AxisLimits {
     /// The acceleration the acc/dec filter gives a rapid-traverse start (v/τ); with no
     /// filter, the torque limit's acceleration of motor + table.
     pub max_acc_mm_s2: f64,
+    /// How the acceleration was derived, for the report.
     pub acc_basis: String,
     /// Following-error limit at full speed: twice the position loop's lag v/Kp without
     /// feed-forward (the feed-forward is commissioned after the limit is set, and must not
@@ -348,6 +427,7 @@ pub struct AxisLimits {
     pub min_ferror_mm: f64,
 }
 
+/// The limits a controller needs for axis `a` of `p` (see [`AxisLimits`]).
 pub fn axis_limits(p: &Preset, a: &AxisParams) -> AxisLimits {
     let v = p.nc.rapid_mm_per_min / 60.0;
     let ad = &p.nc.accdec;
@@ -366,12 +446,12 @@ pub fn axis_limits(p: &Preset, a: &AxisParams) -> AxisLimits {
             .to_lowercase(),
         )
     } else {
-        let lead_m = a.drive.lead_mm * 1e-3;
+        let lead_m = mm_to_m(a.drive.lead_mm);
         let k = std::f64::consts::TAU / lead_m;
         let force = a.servo.torque_limit_nm * k;
         let mass = a.drive.table_mass_kg + a.drive.motor_inertia_kgm2 * k * k;
         (
-            force / mass * 1e3,
+            crate::units::m_to_mm(force / mass),
             "no acc/dec filter: torque limit over motor + table inertia".to_owned(),
         )
     };
@@ -412,90 +492,6 @@ fn travel_mm(a: &AxisParams, scenario: Option<(f64, f64)>) -> (f64, f64) {
     (lo.floor(), hi.ceil())
 }
 
-/// The preset's lead (pitch) error at screw position `x_mm`, µm: the cyclic part, the
-/// cumulative lead deviation and the measured table, as the plant applies them.
-pub fn lead_error_um(l: &LeadError, x_mm: f64) -> f64 {
-    if !l.enabled {
-        return 0.0;
-    }
-    let turns = x_mm / l.period_mm + l.phase_deg / 360.0;
-    l.amplitude_um * (std::f64::consts::TAU * turns).sin()
-        + l.cumulative_um_per_m * x_mm * 1e-3
-        + crate::table::interp(&l.table, x_mm)
-}
-
-/// A pitch-error compensation table: (position mm, correction µm = −lead error).
-#[derive(Debug, Clone, PartialEq)]
-pub struct PitchTable {
-    pub points: Vec<(f64, f64)>,
-    /// Largest |lead error + table correction| over the travel, µm (0 = exact).
-    pub residual_um: f64,
-    pub equidistant: bool,
-}
-
-/// The table that cancels the preset's lead error over `travel`, with at most `max_points`
-/// points; `equidistant` for controls whose tables have one spacing (SINUMERIK, FANUC).
-/// The measured table's own points are used when they fit and the error is piecewise
-/// linear (then the table is exact); otherwise a uniform grid as fine as the limit allows
-/// (32 points per cyclic period are enough for a 0.5 % residual).
-pub fn pitch_table(
-    l: &LeadError,
-    travel: (f64, f64),
-    max_points: usize,
-    equidistant: bool,
-) -> PitchTable {
-    let (lo, hi) = travel;
-    let piecewise_linear = l.amplitude_um == 0.0;
-    let mut xs: Vec<f64> = Vec::new();
-    if piecewise_linear && !equidistant {
-        xs.push(lo);
-        xs.extend(l.table.iter().map(|p| p.0));
-        xs.push(hi);
-        xs.sort_by(f64::total_cmp);
-        xs.dedup();
-    }
-    if xs.is_empty() || xs.len() > max_points {
-        let width = hi - lo;
-        let wanted = if !piecewise_linear {
-            (width / (l.period_mm / 32.0)).ceil() as usize + 1
-        } else if l.table.len() >= 2 {
-            let min_gap = l
-                .table
-                .windows(2)
-                .map(|w| w[1].0 - w[0].0)
-                .fold(f64::INFINITY, f64::min);
-            (width / min_gap).ceil() as usize + 1
-        } else {
-            2
-        };
-        let n = wanted.clamp(2, max_points.max(2));
-        let step = width / (n - 1) as f64;
-        xs = (0..n).map(|i| lo + step * i as f64).collect();
-        if let Some(last) = xs.last_mut() {
-            *last = hi;
-        }
-    }
-    let points: Vec<(f64, f64)> = xs.iter().map(|&x| (x, -lead_error_um(l, x))).collect();
-    let residual = residual_um(l, &points, travel);
-    PitchTable {
-        points,
-        residual_um: residual,
-        equidistant,
-    }
-}
-
-/// Largest |lead error + correction| over the travel, evaluated on 20 000 points plus every
-/// table point (the correction interpolated with its ends held, as every target does).
-pub fn residual_um(l: &LeadError, points: &[(f64, f64)], travel: (f64, f64)) -> f64 {
-    let (lo, hi) = travel;
-    let n = 20_000;
-    (0..=n)
-        .map(|i| lo + (hi - lo) * i as f64 / n as f64)
-        .chain(points.iter().map(|p| p.0))
-        .map(|x| (lead_error_um(l, x) + crate::table::interp(points, x)).abs())
-        .fold(0.0, f64::max)
-}
-
 /// The letter each axis has on a single-channel control: channel 0 keeps X/Y/Z/C; channel 1
 /// uses the secondary letters U/V/W (parallel linear axes) and B for C. More channels do not
 /// fit one motion controller.
@@ -514,7 +510,7 @@ pub(crate) fn flat_letters(p: &Preset) -> Result<Vec<char>, Vec<Violation>> {
         match l {
             Some(l) => out.push(l),
             None => bad.push(Violation::new(
-                format!("axes[{}].channel", a.name),
+                format!("axes.{}.channel", a.name),
                 format!(
                     "channel {} has no free axis letter on a single motion controller (channel 0 uses X/Y/Z/C, channel 1 U/V/W/B)",
                     a.channel
@@ -545,55 +541,11 @@ pub fn fixed(x: f64, digits: usize) -> String {
     }
 }
 
-/// A point table on an equidistant grid, for controls whose tables have one spacing: the
-/// table itself when its points are equidistant, else resampled at its smallest spacing
-/// (at most `max_points`). Returns (points, spacing, largest interpolation change µm or
-/// table unit).
-pub fn equidistant(points: &[(f64, f64)], max_points: usize) -> (Vec<(f64, f64)>, f64, f64) {
-    let (Some(first), Some(last)) = (points.first(), points.last()) else {
-        return (vec![], 0.0, 0.0);
-    };
-    if points.len() < 2 {
-        return (points.to_vec(), 1.0, 0.0);
-    }
-    let width = last.0 - first.0;
-    let step0 = points[1].0 - points[0].0;
-    let regular = points
-        .windows(2)
-        .all(|w| ((w[1].0 - w[0].0) - step0).abs() <= 1e-9 * width.max(1.0));
-    if regular {
-        return (points.to_vec(), step0, 0.0);
-    }
-    let min_gap = points
-        .windows(2)
-        .map(|w| w[1].0 - w[0].0)
-        .fold(f64::INFINITY, f64::min);
-    let n = ((width / min_gap).ceil() as usize + 1).clamp(2, max_points.max(2));
-    let step = width / (n - 1) as f64;
-    let out: Vec<(f64, f64)> = (0..n)
-        .map(|i| {
-            let x = if i + 1 == n {
-                last.0
-            } else {
-                first.0 + step * i as f64
-            };
-            (x, crate::table::interp(points, x))
-        })
-        .collect();
-    let m = 20_000;
-    let err = (0..=m)
-        .map(|i| first.0 + width * i as f64 / m as f64)
-        .chain(points.iter().map(|p| p.0))
-        .map(|x| (crate::table::interp(points, x) - crate::table::interp(&out, x)).abs())
-        .fold(0.0, f64::max);
-    (out, step, err)
-}
-
 /// The cross tables whose compensated axis is `axis`, with their index.
 pub(crate) fn cross_into<'a>(
     p: &'a Preset,
     axis: &str,
-) -> Vec<(usize, &'a crate::comp::cross::CrossTable)> {
+) -> Vec<(usize, &'a crate::preset::comp::CrossTable)> {
     p.cross
         .iter()
         .enumerate()

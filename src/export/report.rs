@@ -1,6 +1,6 @@
-//! The mapping report of an export: every preset setting, the target key it went to, or
-//! "not representable" with the nearest approximation and the error that approximation
-//! introduces, computed by simulating both.
+//! The mapping report of an export: every entry of the export's one list (see
+//! [`super::entry`]) with the lines it became, or "not representable" with the nearest
+//! approximation and the error that approximation introduces, computed by simulating both.
 //!
 //! The simulations run the preset's scenario (at most the horizon) twice in lockstep, once
 //! with the preset's own compensations and once with the approximation installed, and
@@ -11,41 +11,17 @@
 
 use serde::Serialize;
 
+use super::entry::{Entry, Put, Status};
 use super::{Ctx, ExportError, Target};
 use crate::comp::CompStack;
-use crate::comp::backlash::BacklashParams;
-use crate::comp::cross::CrossTable;
 use crate::comp::linuxcnc::{CompRow, CompTable, JointParams, LinuxCncComp, LinuxCncPosComp};
-use crate::comp::quadrant::QuadrantParams;
 use crate::comp::{CompSignal, PosCompCtx, PositionComp};
 use crate::machine::Machine;
 use crate::preset::Preset;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Status {
-    /// Carried exactly.
-    Mapped,
-    /// Computed from preset settings by a documented rule.
-    Derived,
-    /// Carried, but the target's behaviour differs; the error is given.
-    Approximated,
-    NotRepresentable,
-    /// The target may have such a function, but no parameter number is documented here.
-    NoDocumentedParameter,
-}
-
-impl Status {
-    pub fn label(self) -> &'static str {
-        match self {
-            Status::Mapped => "mapped",
-            Status::Derived => "derived",
-            Status::Approximated => "approximated",
-            Status::NotRepresentable => "not representable",
-            Status::NoDocumentedParameter => "no documented parameter",
-        }
-    }
-}
+use crate::preset::comp::BacklashParams;
+use crate::preset::comp::CrossTable;
+use crate::preset::comp::QuadrantParams;
+use crate::units::{m_to_mm, m_to_um, mm_to_m};
 
 /// The error an approximation introduces.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -54,6 +30,7 @@ pub struct ErrFigures {
     pub method: String,
     /// Largest difference of the correction, µm (after removing `constant_offset_um`).
     pub correction_max_um: f64,
+    /// RMS difference of the correction, µm, where a time series was compared.
     pub correction_rms_um: Option<f64>,
     /// Largest difference of the tool's position error, µm (after the constant offset).
     pub position_error_max_um: Option<f64>,
@@ -61,31 +38,61 @@ pub struct ErrFigures {
     pub constant_offset_um: f64,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Entry {
-    /// The preset setting and its value.
-    pub setting: String,
-    pub status: Status,
-    /// Target key = value (or file), empty when nothing is written.
-    pub target: String,
-    /// The rule used, or the nearest approximation.
-    pub note: String,
-    pub error: Option<ErrFigures>,
+impl ErrFigures {
+    /// A figure evaluated along a table or from a rounding, not simulated.
+    pub fn evaluated(method: impl Into<String>, max_um: f64) -> ErrFigures {
+        ErrFigures {
+            method: method.into(),
+            correction_max_um: max_um,
+            correction_rms_um: None,
+            position_error_max_um: None,
+            constant_offset_um: 0.0,
+        }
+    }
 }
 
+/// The mapping report: the export's entries, rendered for people (Markdown) and programs
+/// (JSON).
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
+    /// The preset's name.
     pub preset: String,
+    /// The controller, as [`Target::title`] names it.
     pub target: String,
+    /// The target's command-line name.
     pub target_name: String,
     /// Files written besides the report.
     pub files: Vec<String>,
     /// What the simulations ran.
     pub simulation: String,
+    /// The export's one list; the files were rendered from the same entries.
     pub entries: Vec<Entry>,
 }
 
+/// An entry as the JSON report shows it: the entry plus its rendered target summary.
+#[derive(Serialize)]
+struct JsonEntry<'a> {
+    field: &'a str,
+    value: &'a str,
+    status: Status,
+    target: String,
+    puts: &'a [Put],
+    note: &'a str,
+    error: &'a Option<ErrFigures>,
+}
+
+#[derive(Serialize)]
+struct JsonReport<'a> {
+    preset: &'a str,
+    target: &'a str,
+    target_name: &'a str,
+    files: &'a [String],
+    simulation: &'a str,
+    entries: Vec<JsonEntry<'a>>,
+}
+
 impl Report {
+    /// The report as `mapping_report.md`.
     pub fn to_markdown(&self) -> String {
         let mut s = format!(
             "# Mapping report: preset `{}` → {}\n\n",
@@ -103,15 +110,18 @@ impl Report {
         s += "Status: **mapped** = carried exactly; **derived** = computed by the stated rule; \
               **approximated** = carried but the target behaves differently; **not representable** = \
               the target cannot carry it (nearest approximation given); **no documented parameter** = \
-              nothing is written because no parameter number is documented for it.\n\n";
-        s += "| Preset setting | Status | Target | Rule / nearest approximation | Error introduced |\n";
-        s += "|---|---|---|---|---|\n";
+              nothing is written because no parameter number is documented for it. \
+              *Written as* lists the lines of the files this setting became (the files are rendered \
+              from the same list).\n\n";
+        s += "| Preset field | Value | Status | Written as | Rule / nearest approximation | Error introduced |\n";
+        s += "|---|---|---|---|---|---|\n";
         for e in &self.entries {
             s += &format!(
-                "| {} | {} | {} | {} | {} |\n",
-                cell(&e.setting),
+                "| `{}` | {} | {} | {} | {} | {} |\n",
+                e.field,
+                cell(&e.value),
                 e.status.label(),
-                cell(&e.target),
+                cell(&e.target()),
                 cell(&e.note),
                 cell(&e.error.as_ref().map_or("—".into(), describe))
             );
@@ -119,13 +129,39 @@ impl Report {
         s
     }
 
+    /// The report as `mapping_report.json` (every entry with every line it became).
     pub fn to_json(&self) -> String {
-        serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+        let view = JsonReport {
+            preset: &self.preset,
+            target: &self.target,
+            target_name: &self.target_name,
+            files: &self.files,
+            simulation: &self.simulation,
+            entries: self
+                .entries
+                .iter()
+                .map(|e| JsonEntry {
+                    field: &e.field,
+                    value: &e.value,
+                    status: e.status,
+                    target: e.target(),
+                    puts: &e.puts,
+                    note: &e.note,
+                    error: &e.error,
+                })
+                .collect(),
+        };
+        serde_json::to_string_pretty(&view).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
     }
 
     /// The entries of one status, for tests and summaries.
     pub fn with_status(&self, st: Status) -> impl Iterator<Item = &Entry> {
         self.entries.iter().filter(move |e| e.status == st)
+    }
+
+    /// The entries for one preset field (exact path).
+    pub fn for_field<'a>(&'a self, field: &'a str) -> impl Iterator<Item = &'a Entry> {
+        self.entries.iter().filter(move |e| e.field == field)
     }
 }
 
@@ -166,6 +202,7 @@ pub(crate) enum Change {
         rows: Vec<CompRow>,
         joint: JointParams,
     },
+    /// Quadrant compensation replaced (None = removed).
     Quadrant {
         axis: usize,
         params: Option<QuadrantParams>,
@@ -177,6 +214,7 @@ pub(crate) enum Change {
     Cross { tables: Vec<CrossTable> },
 }
 
+/// How an entry's error figure is obtained.
 #[derive(Debug, Clone)]
 pub(crate) enum Approx {
     None,
@@ -190,47 +228,66 @@ pub(crate) enum Approx {
     },
 }
 
+/// An entry whose error figure may still have to be simulated.
 pub(crate) struct Pending {
+    /// The entry as the report will show it.
     pub entry: Entry,
+    /// How its error figure is obtained.
     pub approx: Approx,
 }
 
 impl Pending {
-    fn new(setting: impl Into<String>, status: Status, target: impl Into<String>) -> Pending {
+    /// An entry for `field` (dot dialect) with `value` (with unit).
+    pub fn new(field: impl Into<String>, value: impl Into<String>, status: Status) -> Pending {
         Pending {
             entry: Entry {
-                setting: setting.into(),
+                field: field.into(),
+                value: value.into(),
                 status,
-                target: target.into(),
+                puts: Vec::new(),
                 note: String::new(),
                 error: None,
             },
             approx: Approx::None,
         }
     }
-    pub fn mapped(setting: impl Into<String>, target: impl Into<String>, note: &str) -> Pending {
-        Pending::new(setting, Status::Mapped, target).note(note)
+    /// Carried exactly.
+    pub fn mapped(field: impl Into<String>, value: impl Into<String>) -> Pending {
+        Pending::new(field, value, Status::Mapped)
     }
-    pub fn derived(setting: impl Into<String>, target: impl Into<String>, note: &str) -> Pending {
-        Pending::new(setting, Status::Derived, target).note(note)
+    /// Computed from preset settings by the rule in the note.
+    pub fn derived(field: impl Into<String>, value: impl Into<String>) -> Pending {
+        Pending::new(field, value, Status::Derived)
     }
-    pub fn approximated(
-        setting: impl Into<String>,
-        target: impl Into<String>,
-        note: &str,
-    ) -> Pending {
-        Pending::new(setting, Status::Approximated, target).note(note)
+    /// Carried, but the target behaves differently (the error says how much).
+    pub fn approximated(field: impl Into<String>, value: impl Into<String>) -> Pending {
+        Pending::new(field, value, Status::Approximated)
     }
-    pub fn not_representable(setting: impl Into<String>, nearest: &str) -> Pending {
-        Pending::new(setting, Status::NotRepresentable, "").note(nearest)
+    /// Not carried; the note gives the nearest approximation.
+    pub fn not_representable(field: impl Into<String>, value: impl Into<String>) -> Pending {
+        Pending::new(field, value, Status::NotRepresentable)
     }
-    pub fn undocumented(setting: impl Into<String>, note: &str) -> Pending {
-        Pending::new(setting, Status::NoDocumentedParameter, "").note(note)
+    /// The target may have the function, but no parameter number is documented.
+    pub fn undocumented(field: impl Into<String>, value: impl Into<String>) -> Pending {
+        Pending::new(field, value, Status::NoDocumentedParameter)
     }
-    pub fn note(mut self, note: &str) -> Pending {
-        self.entry.note = note.to_owned();
+    /// The rule, or why it is approximated and how.
+    pub fn note(mut self, note: impl Into<String>) -> Pending {
+        self.entry.note = note.into();
         self
     }
+    /// A line this entry becomes.
+    pub fn put(mut self, p: Put) -> Pending {
+        self.entry.puts.push(p);
+        self
+    }
+    /// Lines this entry becomes.
+    pub fn puts(mut self, p: impl IntoIterator<Item = Put>) -> Pending {
+        self.entry.puts.extend(p);
+        self
+    }
+    /// The error is simulated: these changes on these axes (`remove_offset`: a constant
+    /// shift is reported apart, homing absorbs it).
     pub fn sim(mut self, changes: Vec<Change>, axes: Vec<usize>, remove_offset: bool) -> Pending {
         self.approx = Approx::Sim {
             changes,
@@ -239,6 +296,7 @@ impl Pending {
         };
         self
     }
+    /// The error is already known.
     pub fn evaluated(mut self, f: ErrFigures) -> Pending {
         self.approx = Approx::Evaluated(f);
         self
@@ -249,7 +307,9 @@ impl Pending {
 pub struct Sim {
     preset: Preset,
     programs: Vec<(String, String)>,
+    /// T3 steps simulated.
     pub steps: u64,
+    /// The preset's T3, s.
     pub t3_s: f64,
     /// Per axis, per T3: correction (cmd_comp − cmd) and position error (pos − cmd), µm.
     corr_um: Vec<Vec<f64>>,
@@ -258,10 +318,12 @@ pub struct Sim {
     range_mm: Vec<Option<(f64, f64)>>,
     /// Per axis with a thermal correction: F' at the measurement point at the end, m.
     thermal_end_m: Vec<Option<f64>>,
+    /// Whether the scenario ran to its end within the horizon.
     pub finished: bool,
 }
 
 impl Sim {
+    /// Runs the preset's scenario for at most `horizon_s` (default [`super::DEFAULT_HORIZON_S`]).
     pub fn new(
         preset: &Preset,
         programs: &[(String, String)],
@@ -285,9 +347,9 @@ impl Sim {
         while !m.done() && m.k < max_k {
             m.step();
             for (i, a) in m.axes.iter().enumerate() {
-                corr[i].push((a.cmd_m - a.cmd_raw_m) * 1e6);
-                err[i].push((a.pos_m - a.cmd_raw_m) * 1e6);
-                let x = a.cmd_raw_m * 1e3;
+                corr[i].push(m_to_um(a.cmd_m() - a.cmd_raw_m()));
+                err[i].push(m_to_um(a.pos_m - a.cmd_raw_m()));
+                let x = m_to_mm(a.cmd_raw_m());
                 range[i] = Some(match range[i] {
                     Some((l, h)) => (l.min(x), h.max(x)),
                     None => (x, x),
@@ -296,8 +358,7 @@ impl Sim {
         }
         let thermal_end_m = (0..n)
             .map(|i| {
-                m.comps()
-                    .find::<crate::comp::thermal::Thermal>()
+                m.find_comp::<crate::comp::thermal::Thermal>()
                     .find(|t| t.axis() == i)
                     .map(|t| t.f_applied_m)
             })
@@ -315,10 +376,12 @@ impl Sim {
         })
     }
 
+    /// The range axis `axis` was commanded over, mm.
     pub fn base_range_mm(&self, axis: usize) -> Option<(f64, f64)> {
         self.range_mm.get(axis).copied().flatten()
     }
 
+    /// F' of the axis's thermal correction at the end of the run, m.
     pub fn thermal_end_m(&self, axis: usize) -> Option<f64> {
         self.thermal_end_m.get(axis).copied().flatten()
     }
@@ -346,16 +409,11 @@ impl Sim {
         )
     }
 
-    fn run(
-        &self,
-        changes: &[Change],
-        axes: &[usize],
-        remove_offset: bool,
-    ) -> Result<ErrFigures, ExportError> {
-        let sim_err = |e: String| ExportError::Simulation(e);
+    /// The preset with `changes` applied, and the position compensations that replace
+    /// model ones (LinuxCNC's joint compensation, a frozen thermal correction).
+    fn changed(&self, changes: &[Change]) -> (Preset, Vec<Box<dyn PositionComp>>) {
         let mut p = self.preset.clone();
-        let mut lcnc: Vec<(usize, LinuxCncComp)> = Vec::new();
-        let mut frozen: Vec<(usize, f64)> = Vec::new();
+        let mut front: Vec<Box<dyn PositionComp>> = Vec::new();
         for c in changes {
             match c {
                 Change::Backlash { axis, params } => match params {
@@ -365,55 +423,86 @@ impl Sim {
                 Change::Linuxcnc { axis, rows, joint } => {
                     p.axes[*axis].backlash.enabled = false;
                     let (table, _) = CompTable::load(rows);
-                    lcnc.push((*axis, LinuxCncComp::new(table, joint.clone())));
+                    let comp = LinuxCncComp::new(table, joint.clone());
+                    let name = p.axes[*axis].name.clone();
+                    front.push(Box::new(LinuxCncPosComp::new(*axis, &name, comp)));
                 }
                 Change::Quadrant { axis, params } => match params {
                     Some(q) => p.axes[*axis].quadrant = q.clone(),
                     None => p.axes[*axis].quadrant.enabled = false,
                 },
-                Change::Thermal { axis, frozen: f } => {
-                    if *f {
-                        let slope = self.thermal_end_m[*axis].unwrap_or(0.0);
-                        frozen.push((*axis, slope));
+                Change::Thermal { axis, frozen } => {
+                    if *frozen {
+                        let t = &self.preset.axes[*axis].thermal;
+                        let f_applied_m = self.thermal_end_m[*axis].unwrap_or(0.0);
+                        front.push(Box::new(FrozenThermal {
+                            axis: *axis,
+                            x0_m: mm_to_m(t.fixed_end_mm),
+                            slope: f_applied_m / mm_to_m(t.measure_pos_mm - t.fixed_end_mm),
+                        }));
                     }
                     p.axes[*axis].thermal.enabled = false;
                 }
                 Change::Cross { tables } => p.cross = tables.clone(),
             }
         }
-        let mut m = Machine::new(&p, &self.programs).map_err(|e| sim_err(e.to_string()))?;
+        (p, front)
+    }
+
+    /// Runs the approximation in lockstep with the baseline; per compared axis the
+    /// differences of correction and position error, µm.
+    fn diffs(&self, changes: &[Change], axes: &[usize]) -> Result<Diffs, ExportError> {
+        let (p, mut front) = self.changed(changes);
+        let mut m =
+            Machine::new(&p, &self.programs).map_err(|e| ExportError::Simulation(e.to_string()))?;
         m.set_recording(false);
-        if !lcnc.is_empty() || !frozen.is_empty() {
+        if !front.is_empty() {
             let mut stack: CompStack = crate::comp::build(&p);
-            let mut front: Vec<Box<dyn PositionComp>> = Vec::new();
-            for (axis, joint) in lcnc {
-                let name = p.axes[axis].name.clone();
-                front.push(Box::new(LinuxCncPosComp::new(axis, &name, joint)));
-            }
-            for (axis, f_applied_m) in frozen {
-                let t = &self.preset.axes[axis].thermal;
-                front.push(Box::new(FrozenThermal {
-                    axis,
-                    x0_m: t.fixed_end_mm * 1e-3,
-                    slope: f_applied_m / ((t.measure_pos_mm - t.fixed_end_mm) * 1e-3),
-                }));
-            }
             front.append(&mut stack.position);
             stack.position = front;
             m.set_comps(stack);
         }
-        let mut d_corr: Vec<Vec<f64>> = vec![Vec::with_capacity(self.steps as usize); axes.len()];
-        let mut d_err: Vec<Vec<f64>> = vec![Vec::with_capacity(self.steps as usize); axes.len()];
-        for k in 0..self.steps as usize {
+        let n = self.steps as usize;
+        let mut d = Diffs {
+            corr: vec![Vec::with_capacity(n); axes.len()],
+            err: vec![Vec::with_capacity(n); axes.len()],
+        };
+        for k in 0..n {
             m.step();
             for (j, &i) in axes.iter().enumerate() {
                 let a = &m.axes[i];
-                d_corr[j].push((a.cmd_m - a.cmd_raw_m) * 1e6 - self.corr_um[i][k]);
-                d_err[j].push((a.pos_m - a.cmd_raw_m) * 1e6 - self.err_um[i][k]);
+                d.corr[j].push(m_to_um(a.cmd_m() - a.cmd_raw_m()) - self.corr_um[i][k]);
+                d.err[j].push(m_to_um(a.pos_m - a.cmd_raw_m()) - self.err_um[i][k]);
             }
         }
+        Ok(d)
+    }
+
+    fn run(
+        &self,
+        changes: &[Change],
+        axes: &[usize],
+        remove_offset: bool,
+    ) -> Result<ErrFigures, ExportError> {
+        let d = self.diffs(changes, axes)?;
+        Ok(d.figures(self.describe(), remove_offset))
+    }
+}
+
+/// Two corrections closer than this (µm) are the same: float noise, far below any
+/// encoder step.
+const SAME_UM: f64 = 0.000_001;
+
+/// Differences between the approximation and the baseline, per compared axis, µm.
+struct Diffs {
+    corr: Vec<Vec<f64>>,
+    err: Vec<Vec<f64>>,
+}
+
+impl Diffs {
+    fn figures(&self, method: String, remove_offset: bool) -> ErrFigures {
         let mut out = ErrFigures {
-            method: self.describe(),
+            method,
             correction_max_um: 0.0,
             correction_rms_um: Some(0.0),
             position_error_max_um: Some(0.0),
@@ -421,9 +510,9 @@ impl Sim {
         };
         let mut rms_sum = 0.0;
         let mut rms_n = 0usize;
-        for j in 0..axes.len() {
+        for (corr, err) in self.corr.iter().zip(&self.err) {
             let off = if remove_offset {
-                d_corr[j].last().copied().unwrap_or(0.0)
+                corr.last().copied().unwrap_or(0.0)
             } else {
                 0.0
             };
@@ -434,14 +523,13 @@ impl Sim {
             // the target is still taking up its initial direction (on a machine, homing
             // does that).
             let start = if remove_offset {
-                d_corr[j]
-                    .iter()
-                    .position(|d| (d - off).abs() <= 1e-6)
+                corr.iter()
+                    .position(|d| (d - off).abs() <= SAME_UM)
                     .unwrap_or(0)
             } else {
                 0
             };
-            for (dc, de) in d_corr[j].iter().zip(&d_err[j]).skip(start) {
+            for (dc, de) in corr.iter().zip(err).skip(start) {
                 let c = dc - off;
                 out.correction_max_um = out.correction_max_um.max(c.abs());
                 rms_sum += c * c;
@@ -456,7 +544,7 @@ impl Sim {
         } else {
             0.0
         });
-        Ok(out)
+        out
     }
 }
 
@@ -493,6 +581,7 @@ pub(crate) fn finish(
     sim: &Sim,
     target: Target,
     pending: Vec<Pending>,
+    files: Vec<String>,
 ) -> Result<Report, ExportError> {
     let mut entries = Vec::new();
     for p in pending {
@@ -512,252 +601,8 @@ pub(crate) fn finish(
         preset: ctx.preset.name.clone(),
         target: target.title().into(),
         target_name: target.name().into(),
-        files: Vec::new(),
+        files,
         simulation: sim.describe(),
         entries,
     })
-}
-
-// ---- entries several targets share ----------------------------------------------------
-
-/// "axes[x].backlash.plus_to_minus = distance (N = 4, B = 500 µm)" and the like.
-pub(crate) fn direction_text(d: &crate::comp::backlash::DirectionParams) -> String {
-    use crate::comp::backlash::OutputMode;
-    match d.mode {
-        OutputMode::Lump => "lump".into(),
-        OutputMode::Distance => format!("distance (N = {}, B = {} µm)", d.parts_n, d.step_b_um),
-        OutputMode::Time => format!("time (M = {} cycles)", d.cycles_m),
-        OutputMode::Function => format!(
-            "function of {:?} ({} points)",
-            d.function_basis,
-            d.function.len()
-        )
-        .to_lowercase(),
-    }
-}
-
-/// Backlash output modes the target applies as one step at the reversal.
-pub(crate) fn backlash_modes_as_lump(ctx: &Ctx, i: usize, control: &str) -> Vec<Pending> {
-    use crate::comp::backlash::OutputMode;
-    let a = &ctx.preset.axes[i];
-    let b = &a.backlash;
-    if !b.enabled {
-        return vec![];
-    }
-    let mut out = Vec::new();
-    let lump = BacklashParams {
-        plus_to_minus: crate::comp::backlash::DirectionParams {
-            mode: OutputMode::Lump,
-            ..b.plus_to_minus.clone()
-        },
-        minus_to_plus: crate::comp::backlash::DirectionParams {
-            mode: OutputMode::Lump,
-            ..b.minus_to_plus.clone()
-        },
-        ..b.clone()
-    };
-    for (name, d) in [
-        ("plus_to_minus", &b.plus_to_minus),
-        ("minus_to_plus", &b.minus_to_plus),
-    ] {
-        let setting = format!(
-            "axes[{}].backlash.{name}.mode = {}",
-            a.name,
-            direction_text(d)
-        );
-        if d.mode == OutputMode::Lump {
-            out.push(Pending::mapped(
-                setting,
-                "(the amount above)",
-                &format!("{control} outputs the backlash amount in one step at the reversal, as lump does"),
-            ));
-        } else {
-            out.push(
-                Pending::not_representable(
-                    setting,
-                    &format!("{control} has no per-direction spreading of the backlash correction; nearest: the whole amount at the reversal (lump, both directions)"),
-                )
-                .sim(
-                    vec![Change::Backlash {
-                        axis: i,
-                        params: Some(lump.clone()),
-                    }],
-                    vec![i],
-                    false,
-                ),
-            );
-        }
-    }
-    out
-}
-
-/// A quadrant compensation the target cannot carry: omitted, and simulated without it.
-pub(crate) fn quadrant_omitted(ctx: &Ctx, i: usize, why: &str) -> Vec<Pending> {
-    let a = &ctx.preset.axes[i];
-    if !a.quadrant.enabled {
-        return vec![];
-    }
-    let q = &a.quadrant;
-    vec![
-        Pending::not_representable(
-            format!(
-                "axes[{}].quadrant (adaptive = {}, inject {:?}, M0 = {} / T0 = {} ms, P0 = {} mm)",
-                a.name,
-                q.adaptive,
-                q.inject,
-                match q.inject {
-                    crate::comp::quadrant::Injection::Torque => format!("{} N·m", q.m0_torque_nm),
-                    crate::comp::quadrant::Injection::Velocity =>
-                        format!("{} mm/s", q.m0_vel_mm_per_s),
-                    crate::comp::quadrant::Injection::Position => format!("{} µm", q.m0_pos_um),
-                },
-                q.t0_ms,
-                q.p0_mm
-            ),
-            &format!("{why}; nearest: none (omitted)"),
-        )
-        .sim(
-            vec![Change::Quadrant {
-                axis: i,
-                params: None,
-            }],
-            vec![i],
-            false,
-        ),
-    ]
-}
-
-/// A thermal correction the target cannot carry as a model.
-pub(crate) fn thermal_omitted(ctx: &Ctx, i: usize, why: &str) -> Vec<Pending> {
-    let a = &ctx.preset.axes[i];
-    if !a.thermal.enabled {
-        return vec![];
-    }
-    vec![
-        Pending::not_representable(
-            thermal_setting(a),
-            &format!("{why}; nearest: none (omitted)"),
-        )
-        .sim(
-            vec![Change::Thermal {
-                axis: i,
-                frozen: false,
-            }],
-            vec![i],
-            false,
-        ),
-    ]
-}
-
-pub(crate) fn thermal_setting(a: &crate::preset::AxisParams) -> String {
-    let t = &a.thermal;
-    format!(
-        "axes[{}].thermal (source {:?}, E = a + k·|F| with a = {}, k = {}/µm, judgement {:?}, x₀ = {} mm, x_m = {} mm)",
-        a.name, t.source, t.a, t.k_per_um, t.judgement, t.fixed_end_mm, t.measure_pos_mm
-    )
-}
-
-/// Cross tables: the ones `keep` says the target carries are mapped by the caller; the rest
-/// are reported omitted, simulated with only the kept ones.
-pub(crate) fn cross_omitted(ctx: &Ctx, keep: &[bool], why: &str) -> Vec<Pending> {
-    ctx.preset
-        .cross
-        .iter()
-        .enumerate()
-        .filter(|(i, t)| t.enabled && !keep.get(*i).copied().unwrap_or(false))
-        .map(|(i, t)| {
-            let comp = ctx
-                .preset
-                .axes
-                .iter()
-                .position(|a| a.name == t.comp_axis)
-                .unwrap_or(0);
-            // The error this table's omission alone introduces: every other table as in
-            // the preset.
-            let others: Vec<CrossTable> = ctx
-                .preset
-                .cross
-                .iter()
-                .enumerate()
-                .filter(|(j, _)| *j != i)
-                .map(|(_, t)| t.clone())
-                .collect();
-            Pending::not_representable(
-                cross_setting(i, t),
-                &format!("{why}; nearest: none (omitted)"),
-            )
-            .sim(vec![Change::Cross { tables: others }], vec![comp], false)
-        })
-        .collect()
-}
-
-pub(crate) fn cross_setting(i: usize, t: &CrossTable) -> String {
-    format!(
-        "cross[{i}] ({} = f({}), {} points {}…{} mm)",
-        t.comp_axis,
-        t.base_axis,
-        t.points.len(),
-        t.points.first().map_or(0.0, |p| p.0),
-        t.points.last().map_or(0.0, |p| p.0)
-    )
-}
-
-/// The pitch table entry: derived from the measured lead error, residual evaluated.
-pub(crate) fn pitch_entry(
-    ctx: &Ctx,
-    i: usize,
-    table: &super::PitchTable,
-    target: String,
-) -> Pending {
-    let a = &ctx.preset.axes[i];
-    let l = &a.lead_error;
-    let (lo, hi) = ctx.axes[i].travel_mm;
-    let setting = format!(
-        "axes[{}].lead_error (amplitude {} µm, period {} mm, cumulative {} µm/m, table {} points)",
-        a.name,
-        l.amplitude_um,
-        l.period_mm,
-        l.cumulative_um_per_m,
-        l.table.len()
-    );
-    let note = format!(
-        "The measured lead error is a property of the screw, which axisbench's NC does not compensate; every control compensates it with a pitch-error table, so the export writes the table that cancels it (correction = −error) at {} points over the travel {lo}…{hi} mm{} (the scenario's travel and the measured table; outside it the end values are held)",
-        table.points.len(),
-        if table.equidistant {
-            ", equidistant"
-        } else {
-            ""
-        }
-    );
-    let status = if table.residual_um <= 1e-9 {
-        Status::Derived
-    } else {
-        Status::Approximated
-    };
-    let mut p = Pending::new(setting, status, target).note(&note);
-    p = p.evaluated(ErrFigures {
-        method: format!(
-            "evaluated along {lo}…{hi} mm: lead error + table correction, linear interpolation between table points"
-        ),
-        correction_max_um: table.residual_um,
-        correction_rms_um: None,
-        position_error_max_um: None,
-        constant_offset_um: 0.0,
-    });
-    p
-}
-
-/// Servo gains: the drive's, never in the NC data a compensation export writes.
-pub(crate) fn servo_entries(ctx: &Ctx, i: usize, where_: &str) -> Vec<Pending> {
-    let a = &ctx.preset.axes[i];
-    let s = &a.servo;
-    vec![Pending::not_representable(
-        format!(
-            "axes[{}].servo (Kp = {}/s, Kv = {} N·s/m, Ki = {}/s, vff = {}, aff = {})",
-            a.name, s.kp_per_s, s.kv_n_s_per_m, s.ki_per_s, s.vff, s.aff
-        ),
-        &format!(
-            "the loop gains belong to {where_}, which this export does not write; they set the following-error limits derived above"
-        ),
-    )]
 }

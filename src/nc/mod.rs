@@ -87,11 +87,13 @@ impl AccDecFilter {
         AccDecFilter { stages }
     }
 
+    /// Feeds the next interpolated position (m) and returns the smoothed one, one per sample.
     #[inline]
     pub fn push(&mut self, x: f64) -> f64 {
         self.stages.iter_mut().fold(x, |v, s| s.push(v))
     }
 
+    /// True when every stage holds one value: no motion left inside the filter.
     pub fn settled(&self) -> bool {
         self.stages.iter().all(MovingAverage::settled)
     }
@@ -110,9 +112,13 @@ struct Segment {
 /// The periods a channel works with: T1, T3, and the ratios T1/T2 and T2/T3.
 #[derive(Debug, Clone, Copy)]
 pub struct ChannelTiming {
+    /// Interpolation period T1, s.
     pub t1_s: f64,
+    /// Amplifier control period T3, s (one direct-command block each).
     pub t3_s: f64,
+    /// T1/T2: position commands generated per interpolation period.
     pub n12: u32,
+    /// T2/T3: amplifier cycles per generated position command.
     pub n23: u32,
 }
 
@@ -121,6 +127,7 @@ pub struct ChannelTiming {
 pub struct Channel {
     ops: Vec<Op>,
     pc: usize,
+    /// Processing mode in force: normal (T1 interpolation) or direct command (T3 blocks).
     pub mode: Mode,
     pending: Option<Mode>,
     /// Switch latched in direct mode, applied at the start of the next T2 batch.
@@ -139,11 +146,13 @@ pub struct Channel {
     q_cur: Vec<f64>,
     t1_phase: u32,
     ended: bool,
+    /// Program line (1-based) of the block being executed; 0 before the first.
     pub line: usize,
     scratch: Vec<f64>,
 }
 
 impl Channel {
+    /// A channel at rest at `start_m` (m per channel axis), about to run `ops` in `initial_mode`.
     pub fn new(
         ops: Vec<Op>,
         start_m: &[f64],

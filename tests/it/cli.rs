@@ -22,7 +22,7 @@ fn simulate_writes_a_trace_and_prints_a_summary() {
         stdout.contains("samples:") && stdout.contains("following error max"),
         "{stdout}"
     );
-    assert!(stdout.contains("reversal +→−"), "{stdout}");
+    assert!(stdout.contains("reversal + -> -"), "{stdout}");
     let t = axisbench::Trace::read_csv(&out, None).expect("valid trace");
     assert_eq!(t.axes(), vec!["x".to_owned()]);
     let _ = std::fs::remove_file(out);
@@ -88,8 +88,8 @@ fn a_bad_program_names_its_line() {
 
 #[test]
 fn export_and_import_through_the_binary() {
-    let dir = std::env::temp_dir().join(format!("axisbench-cli-x-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().to_path_buf();
     let o = bin()
         .args([
             "export",
@@ -147,7 +147,6 @@ fn export_and_import_through_the_binary() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -216,4 +215,110 @@ fn diagnose_names_a_missing_column() {
     assert!(!out.status.success());
     assert!(stderr.contains("qm_m"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every entry of `dir` with its bytes (None for a folder), sorted: what "the folder is
+/// exactly as it was" compares.
+fn snapshot(dir: &std::path::Path) -> Vec<(String, Option<Vec<u8>>)> {
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .expect("dir")
+        .flatten()
+        .map(|e| {
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).ok(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn an_export_blocked_by_a_folder_fails_once_and_changes_nothing() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(out.join("mapping_report.md")).expect("folder in the way");
+    std::fs::write(out.join("linuxcnc.ini"), "previous export\n").expect("old file");
+    let before = snapshot(&out);
+    let o = bin()
+        .args([
+            "export",
+            "--preset",
+            "presets/default.ron",
+            "--to",
+            "linuxcnc",
+            "--horizon",
+            "1",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert_eq!(stderr.lines().count(), 1, "one message: {stderr}");
+    assert!(
+        stderr.contains("mapping_report.md")
+            && stderr.contains("a folder of that name is in the way"),
+        "{stderr}"
+    );
+    assert_eq!(
+        snapshot(&out),
+        before,
+        "linuxcnc.ini kept, no staging folder left"
+    );
+}
+
+#[test]
+fn read_failures_say_cannot_read_once() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let missing = tmp.path().join("nothere");
+    let out = tmp.path().join("x.ron");
+    let m = missing.as_os_str();
+    for args in [
+        vec![
+            "import".as_ref(),
+            "--from".as_ref(),
+            "linuxcnc".as_ref(),
+            "--in".as_ref(),
+            m,
+        ],
+        vec![
+            "import".as_ref(),
+            "--from".as_ref(),
+            "ron".as_ref(),
+            "--in".as_ref(),
+            m,
+        ],
+        vec![
+            "import".as_ref(),
+            "--from".as_ref(),
+            "linuxcnc".as_ref(),
+            "--in".as_ref(),
+            "presets".as_ref(),
+            "--base".as_ref(),
+            m,
+        ],
+    ] {
+        let args: Vec<&std::ffi::OsStr> = args;
+        let mut c = bin();
+        c.args(&args).arg("--out").arg(&out);
+        let o = c.output().expect("runs");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success());
+        assert!(stderr.contains("cannot read"), "{args:?}: {stderr}");
+        assert!(!stderr.contains("cannot write"), "{args:?}: {stderr}");
+        assert_eq!(
+            stderr.matches("No such file or directory").count(),
+            1,
+            "{args:?}: the OS text once: {stderr}"
+        );
+        assert_eq!(
+            stderr.matches(&*missing.display().to_string()).count(),
+            1,
+            "{args:?}: the path once: {stderr}"
+        );
+        assert!(!out.exists());
+    }
 }

@@ -32,7 +32,7 @@ pub fn plain() -> Preset {
 pub fn run(p: &Preset, program: &str) -> Machine {
     let mut m =
         Machine::new(p, &[("test.ngc".into(), program.to_owned())]).expect("machine builds");
-    m.run(600.0);
+    m.run(600.0).unwrap();
     assert!(m.done(), "run did not finish");
     m
 }

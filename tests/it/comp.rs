@@ -3,13 +3,16 @@
 
 use axisbench::Machine;
 use axisbench::analysis;
-use axisbench::comp::backlash::{
-    Backlash, BacklashParams, DirectionParams, FunctionBasis, OutputMode,
+use axisbench::comp::backlash::Backlash;
+use axisbench::comp::cross;
+use axisbench::comp::quadrant::Quadrant;
+use axisbench::comp::thermal::{self, Judge};
+use axisbench::measure;
+use axisbench::preset::comp::{
+    BacklashParams, DirectionParams, FunctionBasis, Judgement, NUpdate, OutputMode, QuadrantParams,
+    ThermalParams,
 };
-use axisbench::comp::quadrant::{NUpdate, Quadrant, QuadrantParams};
-use axisbench::comp::thermal::{self, Judge, Judgement, ThermalParams};
-use axisbench::comp::{cross, measure};
-use axisbench::preset::{self, Preset};
+use axisbench::preset::{self, Fields, Preset};
 use proptest::prelude::*;
 
 const Q_UM: f64 = 10.0;
@@ -233,7 +236,7 @@ fn peaks(p: &Preset) -> Vec<f64> {
         .program_text("short_stroke_quadrant.ngc")
         .expect("program");
     let mut m = Machine::new(p, &[("s.ngc".into(), text)]).expect("machine");
-    m.run(60.0);
+    m.run(60.0).unwrap();
     analysis::summarize(&m.trace)[0]
         .reversals
         .iter()
@@ -310,12 +313,12 @@ fn e_is_clamped_to_its_range() {
         a: 50.0,
         ..ThermalParams::default()
     };
-    assert_eq!(p.e_of(1e-6), thermal::E_MAX);
+    assert_eq!(p.e_of(1e-6), axisbench::preset::comp::E_MAX);
     let p = ThermalParams {
         a: -3.0,
         ..ThermalParams::default()
     };
-    assert_eq!(p.e_of(1e-6), thermal::E_MIN);
+    assert_eq!(p.e_of(1e-6), axisbench::preset::comp::E_MIN);
 }
 
 #[test]
@@ -373,7 +376,7 @@ fn thermal_auto_remeasurement_beats_a_fixed_e() {
     )];
     let resid = |p: &Preset| -> (f64, u32) {
         let mut m = Machine::new(p, &texts).expect("machine");
-        m.run(3.0 * 3600.0);
+        m.run(3.0 * 3600.0).unwrap();
         let tr = &m.trace;
         let th = tr.values("x.thermal").expect("thermal");
         let comp = tr.values("x.thermal_comp");
@@ -383,8 +386,7 @@ fn thermal_auto_remeasurement_beats_a_fixed_e() {
             .map(|(k, x)| (x + comp.map_or(0.0, |c| c[k])).abs())
             .fold(0.0, f64::max);
         let n = m
-            .comps()
-            .find::<thermal::Thermal>()
+            .find_comp::<thermal::Thermal>()
             .next()
             .map_or(0, |t| t.measurements);
         (max, n)
@@ -405,7 +407,7 @@ fn thermal_auto_remeasurement_beats_a_fixed_e() {
     );
     // The sparse measurement column holds exactly the measurements taken.
     let mut m = Machine::new(&p, &texts).expect("machine");
-    m.run(3.0 * 3600.0);
+    m.run(3.0 * 3600.0).unwrap();
     let meas = m.trace.values("x.meas").expect("meas column");
     assert_eq!(meas.iter().filter(|v| v.is_finite()).count() as u32, n);
 }
@@ -419,27 +421,36 @@ fn cross_table_is_exact_at_nodes_linear_between_and_held_outside() {
     assert!((cross::delta_m(&pts, 2.0) - 1e-6).abs() < 1e-21);
     assert_eq!(cross::delta_m(&pts, -5.0), 0.0);
     assert_eq!(cross::delta_m(&pts, 9.0), -2e-6);
-    let bad = cross::CrossTable {
+    let bad = axisbench::preset::comp::CrossTable {
         enabled: true,
         base_axis: "x".into(),
         comp_axis: "z".into(),
         points: vec![(0.0, 1.0), (0.0, 2.0)],
     };
     assert!(
-        bad.check()
+        bad.check("cross.0")
             .iter()
-            .any(|(p, r)| p == "points[1]" && r.contains("strictly increasing"))
+            .any(|e| e.path == "cross.0.points.1" && e.reason.contains("strictly increasing"))
     );
-    let short = cross::CrossTable {
+    let short = axisbench::preset::comp::CrossTable {
         points: vec![(0.0, 1.0)],
         ..bad.clone()
     };
-    assert!(short.check().iter().any(|(_, r)| r.contains("at least 2")));
-    let nan = cross::CrossTable {
+    assert!(
+        short
+            .check("cross.0")
+            .iter()
+            .any(|e| e.path == "cross.0.points" && e.reason.contains("at least 2"))
+    );
+    let nan = axisbench::preset::comp::CrossTable {
         points: vec![(0.0, f64::NAN), (1.0, 2.0)],
         ..bad
     };
-    assert!(nan.check().iter().any(|(_, r)| r.contains("finite")));
+    assert!(
+        nan.check("cross.0")
+            .iter()
+            .any(|e| e.path == "cross.0.points.0" && e.reason.contains("finite"))
+    );
 }
 
 #[test]
@@ -454,7 +465,7 @@ fn sag_tables_with_more_points_leave_less_z_error() {
         .collect();
     let rms = |p: &Preset| {
         let mut m = Machine::new(p, &texts).expect("machine");
-        m.run(120.0);
+        m.run(120.0).unwrap();
         analysis::summarize(&m.trace)
             .iter()
             .find(|s| s.axis == "z")
@@ -490,7 +501,7 @@ fn backlash_compensation_removes_the_lost_motion_on_the_default_axis() {
         let lp = preset::load_embedded("default.ron").expect("preset");
         let text = lp.program_text("default.ngc").expect("program");
         let mut m = Machine::new(p, &[("d.ngc".into(), text)]).expect("machine");
-        m.run(60.0);
+        m.run(60.0).unwrap();
         analysis::summarize(&m.trace)[0]
             .reversals
             .iter()
@@ -511,7 +522,7 @@ fn backlash_compensation_removes_the_lost_motion_on_the_default_axis() {
 fn compensations_write_their_trace_signals_and_validate() {
     let lp = preset::load_embedded("vertical_z_gravity.ron").expect("preset");
     let mut m = Machine::from_loaded(&lp).expect("machine");
-    m.run(60.0);
+    m.run(60.0).unwrap();
     let bl = m.trace.values("z.backlash_comp").expect("backlash column");
     assert!(bl.iter().any(|&v| v != 0.0));
     let text = preset::embedded("default.ron")
@@ -520,7 +531,7 @@ fn compensations_write_their_trace_signals_and_validate() {
     let e = Preset::from_ron(&text, "bad.ron").expect_err("invalid");
     assert!(
         e.to_string()
-            .contains("axes[x].backlash.plus_to_minus.parts_n"),
+            .contains("axes.x.backlash.plus_to_minus.parts_n"),
         "{e}"
     );
 }

@@ -120,17 +120,49 @@ fn the_same_record_gives_the_same_report() {
 }
 
 #[test]
-fn cancelling_stops_the_diagnosis() {
-    let c = eval::case(1, 3, 8.0).expect("case");
-    let cancel = AtomicBool::new(true);
-    let quiet = |_: f64, _: &str| {};
+fn cancelling_stops_a_running_diagnosis() {
+    use std::sync::Mutex;
+    use std::sync::atomic::Ordering;
+    use std::time::{Duration, Instant};
+    let c = eval::case(1, 3, 20.0).expect("case");
+    let cancel = AtomicBool::new(false);
+    // The diagnosis reports its progress; the test cancels once it is well under way
+    // (past the calibration, fitting candidates), then times how long it takes to stop.
+    let seen: Mutex<(f64, usize, Option<Instant>)> = Mutex::new((0.0, 0, None));
+    let report = |f: f64, what: &str| {
+        if let Ok(mut s) = seen.lock() {
+            s.0 = s.0.max(f);
+            if what == "fitting" {
+                s.1 += 1;
+            }
+            // 60 replays in: the calibration is done and candidates are being fitted.
+            if s.1 == 60 && s.2.is_none() {
+                s.2 = Some(Instant::now());
+                cancel.store(true, Ordering::Relaxed);
+            }
+        }
+    };
     let p = Progress {
-        report: &quiet,
+        report: &report,
         cancel: &cancel,
     };
     let e = diagnose::diagnose(&c.nominal, &c.record, None, &Options::default(), &p)
         .expect_err("cancelled");
-    assert!(matches!(e, diagnose::DiagnoseError::Cancelled));
+    let stopped = Instant::now();
+    assert!(matches!(e, diagnose::DiagnoseError::Cancelled), "{e}");
+    let (frac, replays, at) = *seen.lock().expect("lock");
+    assert!(replays >= 60, "only {replays} replays ran before the end");
+    let at = at.expect("the diagnosis was fitting candidates when it was cancelled");
+    assert!(
+        frac > 0.0 && frac < 0.99,
+        "cancelled mid-way, not at the end ({frac})"
+    );
+    // Every replay checks the flag, so the two workers stop within one replay each.
+    assert!(
+        stopped - at < Duration::from_secs(2),
+        "it took {:?} to stop",
+        stopped - at
+    );
 }
 
 fn bad(text: &str) -> String {

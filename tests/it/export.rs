@@ -4,14 +4,16 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use axisbench::comp::backlash::OutputMode;
 use axisbench::export::{self, ExportError, ExportOptions, Status, Target, linuxcnc};
+use axisbench::preset::comp::OutputMode;
 use axisbench::preset::{self, LoadedPreset, Preset};
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("axisbench-export-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+/// A scratch folder `name` inside a temporary folder that is removed when the guard drops
+/// (also when the test fails).
+fn scratch(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let t = tempfile::tempdir().expect("tempdir");
+    let d = t.path().join(name);
+    (t, d)
 }
 
 fn shipped(name: &str) -> (LoadedPreset, Vec<(String, String)>) {
@@ -53,14 +55,13 @@ fn ron_round_trip_is_exact_for_every_shipped_preset() {
     for name in preset::SHIPPED_PRESETS {
         let (lp, progs) = shipped(name);
         let ex = export::export(&lp.preset, &progs, Target::Ron, &opts()).expect("exports");
-        let dir = scratch(&format!("ron-{name}"));
+        let (_t, dir) = scratch(&format!("ron-{name}"));
         ex.write(&dir).expect("writes");
         let back = export::import::import(Target::Ron, &dir, &lp).expect("imports");
         assert_eq!(back, lp.preset, "{name}: RON round trip");
         // The exported folder loads on its own (programs next to the preset).
         let again = preset::load(&dir.join("preset.ron").display().to_string()).expect("loads");
         axisbench::Machine::from_loaded(&again).expect("runs from the exported folder");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }
 
@@ -78,7 +79,7 @@ fn linuxcnc_round_trip_gives_back_what_is_representable() {
             progs.clone()
         };
         let ex = export::export(&p, &progs, Target::Linuxcnc, &opts()).expect("exports");
-        let dir = scratch(&format!("lcnc-rt-{label}"));
+        let (_t, dir) = scratch(&format!("lcnc-rt-{label}"));
         ex.write(&dir).expect("writes");
         let ini = dir.join("linuxcnc.ini");
         let base = LoadedPreset {
@@ -144,7 +145,6 @@ fn linuxcnc_round_trip_gives_back_what_is_representable() {
                 }
             }
         }
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }
 
@@ -186,7 +186,7 @@ fn a_lead_table_is_exact_and_backlash_goes_into_the_fwd_rev_columns() {
         .report
         .entries
         .iter()
-        .find(|e| e.setting.contains("lead_error"))
+        .find(|e| e.field == "axes.x.lead_error")
         .expect("lead error in the report");
     assert_eq!(
         pitch.status,
@@ -205,7 +205,7 @@ fn the_report_simulates_what_linuxcnc_cannot_carry() {
         .report
         .entries
         .iter()
-        .find(|e| e.setting.contains("backlash.q_um"))
+        .find(|e| e.field.ends_with(".backlash.q_um"))
         .expect("backlash row");
     assert_eq!(bl.status, Status::Approximated);
     let f = bl.error.as_ref().expect("simulated");
@@ -225,7 +225,7 @@ fn the_report_simulates_what_linuxcnc_cannot_carry() {
         .report
         .entries
         .iter()
-        .find(|e| e.setting.contains("plus_to_minus.mode = distance"))
+        .find(|e| e.setting().contains("plus_to_minus.mode = distance"))
         .expect("distance mode row");
     assert_eq!(mode.status, Status::NotRepresentable);
     let md = ex.report.to_markdown();
@@ -239,7 +239,7 @@ fn the_report_simulates_what_linuxcnc_cannot_carry() {
         .report
         .entries
         .iter()
-        .find(|e| e.setting.contains("plus_to_minus.mode = distance"))
+        .find(|e| e.setting().contains("plus_to_minus.mode = distance"))
         .expect("distance mode row");
     let f = lump.error.as_ref().expect("simulated");
     assert!(
@@ -258,7 +258,7 @@ fn omitted_compensations_cost_what_the_simulation_says() {
         .report
         .entries
         .iter()
-        .find(|e| e.setting.contains("quadrant"))
+        .find(|e| e.field.ends_with(".quadrant"))
         .expect("quadrant row");
     assert_eq!(q.status, Status::NotRepresentable);
     let f = q.error.as_ref().expect("simulated");
@@ -270,7 +270,7 @@ fn omitted_compensations_cost_what_the_simulation_says() {
         .report
         .entries
         .iter()
-        .filter(|e| e.setting.starts_with("cross["))
+        .filter(|e| e.field.starts_with("cross."))
         .collect();
     assert_eq!(crosses.len(), 4);
     // Each row is the error of omitting that table alone. The left post travels the
@@ -291,7 +291,7 @@ fn omitted_compensations_cost_what_the_simulation_says() {
             ex.report
                 .entries
                 .iter()
-                .filter(|e| e.setting.starts_with("cross[") && e.status == Status::Mapped)
+                .filter(|e| e.field.starts_with("cross.") && e.status == Status::Mapped)
                 .count(),
             4,
             "{t:?}"
@@ -323,7 +323,7 @@ fn every_target_exports_every_shipped_preset_with_a_report_row_per_compensation(
                             ex.report
                                 .entries
                                 .iter()
-                                .any(|e| e.setting.contains(&format!("axes[{}].{what}", a.name))),
+                                .any(|e| e.field.starts_with(&format!("axes.{}.{what}", a.name))),
                             "{name} → {t:?}: no row for {}.{what}",
                             a.name
                         );
@@ -339,7 +339,7 @@ fn every_target_exports_every_shipped_preset_with_a_report_row_per_compensation(
                             || e.note.contains("row")
                             || e.note.contains("loop gains"),
                         "{name} → {t:?}: '{}' has no error figure and does not say why",
-                        e.setting
+                        e.setting()
                     );
                 }
             }
@@ -360,7 +360,7 @@ fn target_limits_are_all_listed_and_nothing_is_written() {
     assert!(
         violations
             .iter()
-            .any(|v| v.location == "axes[x].lead_error.table" && v.reason.contains("256")),
+            .any(|v| v.location == "axes.x.lead_error.table" && v.reason.contains("256")),
         "{err}"
     );
     let err = export::export(&p, &progs, Target::Fanuc, &opts()).expect_err("out of range");
@@ -368,7 +368,7 @@ fn target_limits_are_all_listed_and_nothing_is_written() {
     // An invalid preset: every field problem and the target limit, in one error.
     let mut bad = p.clone();
     bad.axes[0].servo.kp_per_s = f64::NAN;
-    bad.cross = vec![axisbench::comp::cross::CrossTable {
+    bad.cross = vec![axisbench::preset::comp::CrossTable {
         enabled: true,
         base_axis: "x".into(),
         comp_axis: "nope".into(),
@@ -383,13 +383,13 @@ fn target_limits_are_all_listed_and_nothing_is_written() {
     empty.cross[0].points.clear();
     for t in Target::ALL {
         let e = export::export(&empty, &progs, t, &opts()).expect_err("invalid");
-        assert!(e.to_string().contains("cross[0].points"), "{t:?}: {e}");
+        assert!(e.to_string().contains("cross.0.points"), "{t:?}: {e}");
     }
     let err = export::export(&bad, &progs, Target::Linuxcnc, &opts()).expect_err("invalid");
     let text = err.to_string();
     for needle in [
         "servo.kp_per_s",
-        "cross[0].points[1]",
+        "cross.0.points.1",
         "no axis named 'nope'",
         "lead_error.table",
         "nothing was written",
@@ -397,7 +397,7 @@ fn target_limits_are_all_listed_and_nothing_is_written() {
         assert!(text.contains(needle), "missing '{needle}' in:\n{text}");
     }
     // Through the command line: a clear error and no folder.
-    let dir = scratch("bad-cli");
+    let (_t, dir) = scratch("bad-cli");
     std::fs::create_dir_all(&dir).expect("dir");
     let pf = dir.join("bad.ron");
     std::fs::write(&pf, p.to_ron().expect("ron")).expect("write");
@@ -421,7 +421,6 @@ fn target_limits_are_all_listed_and_nothing_is_written() {
         "{stderr}"
     );
     assert!(!out.exists(), "nothing was written");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -473,7 +472,7 @@ fn the_checker_catches_what_linuxcnc_accepts_silently() {
 
 #[test]
 fn import_reports_every_problem_of_a_hand_edited_comp_file() {
-    let dir = scratch("import-bad");
+    let (_t, dir) = scratch("import-bad");
     std::fs::create_dir_all(&dir).expect("dir");
     std::fs::write(
         dir.join("linuxcnc.ini"),
@@ -497,5 +496,332 @@ fn import_reports_every_problem_of_a_hand_edited_comp_file() {
         text.contains("j.comp:2") && text.contains("position-dependent backlash"),
         "{text}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The lines the report's entries put into `file`, assembled as the renderer assembles
+/// them: one line per (section, key), the entries' texts after the key in entry order.
+fn lines_from_entries(report: &export::Report, file: &str) -> Vec<String> {
+    let mut lines: Vec<((String, String), String)> = Vec::new();
+    for e in &report.entries {
+        for p in e.puts.iter().filter(|p| p.file == file) {
+            let id = (p.section.clone(), p.key.clone());
+            match lines.iter_mut().find(|(k, _)| *k == id) {
+                Some((_, t)) => t.push_str(&p.text),
+                None => lines.push((id, format!("{}{}", p.key, p.text))),
+            }
+        }
+    }
+    lines.into_iter().map(|(_, t)| t).collect()
+}
+
+/// A line that carries no value: blank, comment, section header, program frame.
+fn layout(line: &str) -> bool {
+    let t = line.trim();
+    t.is_empty()
+        || t.starts_with('#')
+        || t.starts_with(';')
+        || (t.starts_with('[') && t.ends_with(']'))
+        || t.starts_with("BEGIN ")
+        || t.starts_with("%_N_")
+        || t == "CHANDATA(1)"
+        || t == "M17"
+}
+
+#[test]
+fn files_and_report_are_rendered_from_the_same_entries() {
+    let short = ExportOptions {
+        horizon_s: Some(2.0),
+    };
+    let mut checked_lines = 0;
+    for name in preset::SHIPPED_PRESETS {
+        let (lp, progs) = shipped(name);
+        for t in Target::ALL {
+            let ex = export::export(&lp.preset, &progs, t, &short)
+                .unwrap_or_else(|e| panic!("{name} → {t:?}: {e}"));
+            let names: Vec<&str> = ex.files.iter().map(|f| f.0.as_str()).collect();
+            for e in &ex.report.entries {
+                for p in &e.puts {
+                    assert!(
+                        names.contains(&p.file.as_str()),
+                        "{name} → {t:?}: {} puts a line into {}, which is not written",
+                        e.field,
+                        p.file
+                    );
+                }
+            }
+            for (file, text) in &ex.files {
+                if t == Target::Ron {
+                    let puts: Vec<_> = ex
+                        .report
+                        .entries
+                        .iter()
+                        .flat_map(|e| e.puts.iter())
+                        .filter(|p| p.file == *file)
+                        .collect();
+                    assert_eq!(puts.len(), 1, "{name}: {file}");
+                    assert_eq!(&puts[0].text, text, "{name}: {file} is its entry's text");
+                    continue;
+                }
+                // Every line an entry claims is in the file …
+                let mut rest: Vec<&str> = text.lines().collect();
+                for l in lines_from_entries(&ex.report, file) {
+                    let pos = rest.iter().position(|r| *r == l).unwrap_or_else(|| {
+                        panic!("{name} → {t:?}: {file} lacks the entry line {l:?}:\n{text}")
+                    });
+                    rest.remove(pos);
+                    checked_lines += 1;
+                }
+                // … and every other line of the file is layout, carrying no value.
+                for r in rest {
+                    assert!(
+                        layout(r),
+                        "{name} → {t:?}: {file} line {r:?} belongs to no entry"
+                    );
+                }
+            }
+            // The JSON report is the same list, with each entry's rendered target.
+            let json: serde_json::Value =
+                serde_json::from_str(&ex.report.to_json()).expect("valid JSON");
+            for (k, e) in ex.report.entries.iter().enumerate() {
+                assert_eq!(json["entries"][k]["field"], e.field.as_str());
+                assert_eq!(json["entries"][k]["target"], e.target().as_str());
+                assert_eq!(
+                    json["entries"][k]["puts"].as_array().map(Vec::len),
+                    Some(e.puts.len())
+                );
+            }
+        }
+    }
+    assert!(checked_lines > 300, "{checked_lines} lines checked");
+}
+
+#[test]
+fn field_paths_use_the_dot_dialect() {
+    let short = ExportOptions {
+        horizon_s: Some(1.0),
+    };
+    for name in preset::SHIPPED_PRESETS {
+        let (lp, progs) = shipped(name);
+        for t in Target::ALL {
+            let ex = export::export(&lp.preset, &progs, t, &short).expect("exports");
+            for e in &ex.report.entries {
+                let ok = e.field == "(the whole preset)"
+                    || (!e.field.is_empty()
+                        && e.field.split('.').all(|seg| {
+                            !seg.is_empty()
+                                && seg.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+                        }));
+                assert!(ok, "{name} → {t:?}: field '{}'", e.field);
+                // The field resolves in the preset as --set takes it (a list of axes by
+                // axis name, other lists by index).
+                if e.field.contains('.') {
+                    let known = lp
+                        .preset
+                        .field_paths()
+                        .iter()
+                        .any(|(p, _)| p == &e.field || p.starts_with(&format!("{}.", e.field)));
+                    assert!(
+                        known,
+                        "{name} → {t:?}: '{}' is not a preset path or section",
+                        e.field
+                    );
+                }
+            }
+            let md = ex.report.to_markdown();
+            assert!(
+                !md.contains("axes["),
+                "{name} → {t:?}: bracket dialect in the report"
+            );
+        }
+    }
+    // Violations, too.
+    let mut bad = lead_and_backlash();
+    bad.axes[0].servo.kp_per_s = f64::NAN;
+    let (_, progs) = shipped("default.ron");
+    let err = export::export(&bad, &progs, Target::Linuxcnc, &opts()).expect_err("invalid");
+    let text = err.to_string();
+    assert!(
+        text.contains("axes.x.servo.kp_per_s") && !text.contains("axes["),
+        "{text}"
+    );
+}
+
+#[test]
+fn an_export_our_import_would_reject_is_refused_before_anything_is_written() {
+    // The example: a lead error of 1e300 µm/m would make comp trims of ~1e296 mm.
+    let (_t, dir) = scratch("refused");
+    let out = dir.join("lcnc");
+    let o = Command::new(env!("CARGO_BIN_EXE_axisbench"))
+        .args([
+            "export",
+            "--preset",
+            "embedded:default.ron",
+            "--to",
+            "linuxcnc",
+            "--horizon",
+            "1",
+            "--set",
+            "axes.x.lead_error.enabled=true",
+            "--set",
+            "axes.x.lead_error.cumulative_um_per_m=1e300",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    // The preset's own range check refuses it at --set, before any export runs.
+    for needle in [
+        "axes.x.lead_error.cumulative_um_per_m",
+        "1.000000e300 is outside the allowed range -10000 … 10000 um/m",
+    ] {
+        assert!(stderr.contains(needle), "missing '{needle}' in:\n{stderr}");
+    }
+    assert!(!out.exists(), "nothing was written");
+    // Every value inside its range, but the comp file's trims (correction ± Q/2) are not:
+    // only reading the rendered files back finds it, and it is named by the entry that
+    // wrote the line.
+    let mut p = lead_and_backlash();
+    p.axes[0].backlash.q_um = 10_000.0;
+    p.axes[0].lead_error.cumulative_um_per_m = 0.0;
+    p.axes[0].lead_error.table = vec![(0.0, 6000.0), (100.0, 6000.0)];
+    let (_, progs) = shipped("default.ron");
+    let err = export::export(&p, &progs, Target::Linuxcnc, &opts()).expect_err("refused");
+    let ExportError::Violations { violations, .. } = &err else {
+        panic!("{err}")
+    };
+    let v = violations
+        .iter()
+        .find(|v| v.location == "axes.x.lead_error")
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!(
+        v.reason.contains("joint0.comp:1")
+            && v.reason.contains("our own import rejects")
+            && v.reason
+                .contains("reverse trim: -11 mm is outside the allowed range"),
+        "{v}"
+    );
+    // SINUMERIK writes the same amounts separately, within range: accepted.
+    export::export(&p, &progs, Target::Siemens, &opts()).expect("siemens carries it");
+}
+
+/// Writes `linuxcnc.ini` (and `j.comp` when given) into a fresh folder and imports it
+/// onto the default preset.
+fn import_ini(ini: &str, comp: Option<&str>) -> Result<Preset, ExportError> {
+    let (_t, dir) = scratch("import");
+    std::fs::create_dir_all(&dir).expect("dir");
+    std::fs::write(dir.join("linuxcnc.ini"), ini).expect("ini");
+    if let Some(c) = comp {
+        std::fs::write(dir.join("j.comp"), c).expect("comp");
+    }
+    let (lp, _) = shipped("default.ron");
+    export::import::import(Target::Linuxcnc, &dir, &lp)
+}
+
+#[test]
+fn import_checks_every_number_against_its_physical_range() {
+    let joint = |extra: &str| format!("[JOINT_0]\nMAX_VELOCITY = 100\n{extra}");
+    for (ini, comp, needles) in [
+        // The example: this imported and then overflowed the acc/dec filter.
+        (
+            joint("MAX_ACCELERATION = 1e-300\n"),
+            None,
+            vec![
+                "[JOINT_0]MAX_ACCELERATION",
+                "1e-300 mm/s² is outside the allowed range 0.01…1000000 mm/s²",
+            ],
+        ),
+        (
+            joint("MAX_ACCELERATION = 0.02\n"),
+            None,
+            vec![
+                "[JOINT_0]MAX_ACCELERATION",
+                "5000 s is outside",
+                "acc/dec time constant",
+            ],
+        ),
+        (
+            "[JOINT_0]\nMAX_VELOCITY = inf\n".to_owned(),
+            None,
+            vec!["[JOINT_0]MAX_VELOCITY", "inf is not a finite number"],
+        ),
+        (
+            joint("BACKLASH = 50\n"),
+            None,
+            vec![
+                "[JOINT_0]BACKLASH",
+                "50 mm is outside the allowed range 0…10 mm",
+            ],
+        ),
+        (
+            joint("BACKLASH = -0.01\n"),
+            None,
+            vec!["[JOINT_0]BACKLASH", "-0.01 mm is outside"],
+        ),
+        (
+            joint("COMP_FILE = j.comp\nCOMP_FILE_TYPE = 1\n"),
+            Some("1e9 0 0\n"),
+            vec![
+                "j.comp:1",
+                "nominal: 1000000000 mm is outside the allowed range -100000…100000 mm",
+            ],
+        ),
+        (
+            joint("COMP_FILE = j.comp\nCOMP_FILE_TYPE = 1\n"),
+            Some("0 0.5 0.4\n10 1e-310 -20\n"),
+            vec!["j.comp:2", "reverse trim: -20 mm"],
+        ),
+        (
+            joint("COMP_FILE = missing.comp\n"),
+            None,
+            vec!["missing.comp", "cannot read", "No such file"],
+        ),
+    ] {
+        let err = import_ini(&ini, comp).expect_err(&ini);
+        let text = err.to_string();
+        for n in needles {
+            assert!(
+                text.contains(n),
+                "missing '{n}' for {ini:?} / {comp:?}:\n{text}"
+            );
+        }
+    }
+    // In range: imported, and the preset runs.
+    let p =
+        import_ini(&joint("MAX_ACCELERATION = 2000\nBACKLASH = 0.01\n"), None).expect("imports");
+    assert!(
+        (p.nc.accdec.tc1_s - 0.05).abs() < 1e-12,
+        "τ = v/a = 100/2000 s"
+    );
+    assert!((p.axes[0].backlash.q_um - 10.0).abs() < 1e-9);
+    let mut m = axisbench::Machine::new(&p, &[("t.ngc".into(), "G01 X10 F3000\nM30\n".into())])
+        .expect("builds");
+    m.run(0.5).unwrap();
+    assert!(m.axes[0].pos_m.is_finite());
+}
+
+#[test]
+fn import_refuses_a_result_the_machine_check_rejects() {
+    // A base whose servo passes the field rules but not the closed-loop stability check.
+    let (lp, progs) = shipped("default.ron");
+    let ex = export::export(&lp.preset, &progs, Target::Linuxcnc, &opts()).expect("exports");
+    let (_t, dir) = scratch("unstable");
+    ex.write(&dir).expect("writes");
+    let mut base = lp.clone();
+    base.preset.axes[0].servo.kv_n_s_per_m = 5e8;
+    assert!(
+        base.preset.validate().is_empty(),
+        "the field rules accept it"
+    );
+    assert!(
+        !axisbench::machine::check(&base.preset).is_empty(),
+        "unstable"
+    );
+    let err = export::import::import(Target::Linuxcnc, &dir, &base).expect_err("refused");
+    let text = err.to_string();
+    assert!(
+        text.contains("axes.x.servo") && text.contains("the imported preset is not valid"),
+        "{text}"
+    );
 }

@@ -72,7 +72,7 @@ fn cases() -> Vec<(&'static str, Preset, Option<&'static str>)> {
     {
         let a = &mut p2.axes[0];
         a.backlash.q_um = 20.0;
-        a.backlash.plus_to_minus.mode = axisbench::comp::backlash::OutputMode::Distance;
+        a.backlash.plus_to_minus.mode = axisbench::preset::comp::OutputMode::Distance;
         a.lead_error.enabled = true;
         a.lead_error.amplitude_um = 3.0;
         a.lead_error.period_mm = 10.0;

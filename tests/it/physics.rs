@@ -1,7 +1,7 @@
 //! Analytic and physical checks of the amplifier and the plant.
 
 use axisbench::preset::{Coupling, Mode};
-use axisbench::servo::force_per_torque;
+use axisbench::units::force_per_torque;
 
 use crate::common::{at, col, plain, run};
 
@@ -38,8 +38,7 @@ fn step_response_matches_second_order_analytic() {
     a.servo.ki_per_s = 0.0;
     a.servo.current_lag_s = 0.0;
     p.nc.initial_mode = Mode::Direct;
-    let (m_m, m_t) = axisbench::servo::masses(&p.axes[0]);
-    let kv_over_m = p.axes[0].servo.kv_n_s_per_m / (m_m + m_t);
+    let kv_over_m = p.axes[0].servo.kv_n_s_per_m / p.axes[0].drive.total_mass_kg();
     let kp = p.axes[0].servo.kp_per_s;
     let step_mm = 0.1;
     let m = run(&p, "G05P4\nU0.1\nG04 P500\nM30\n");
@@ -243,7 +242,7 @@ fn crossbeam_sag_matches_the_beam_formula() {
     let lp = axisbench::preset::load_embedded("vertical_lathe_crossbeam.ron").expect("preset");
     let p = lp.preset.clone();
     let mut m = axisbench::Machine::from_loaded(&lp).expect("machine");
-    m.run_steps(10);
+    m.run_steps(10).unwrap();
     let cb = &p.crossbeam;
     let l = cb.span_mm * 1e-3;
     let ei = cb.youngs_modulus_gpa * 1e9 * cb.area_moment_cm4 * 1e-8;
@@ -285,7 +284,7 @@ fn sag_is_largest_with_the_post_at_midspan() {
     lp.preset.scenario.programs[1] = "vertical_lathe_right_traverse.ngc".into();
     let mut m = axisbench::Machine::from_loaded(&lp).expect("machine");
     m.set_recording(true);
-    m.run(600.0);
+    m.run(600.0).unwrap();
     let tr = &m.trace;
     let x = col(tr, "x.pos");
     let sag = col(tr, "z.sag");
@@ -388,11 +387,11 @@ fn lead_error_table_is_interpolated_and_held() {
 #[test]
 fn stability_check_rejects_an_unstable_loop_and_accepts_the_presets() {
     let mut p = plain();
-    assert!(axisbench::servo::check_stability(&p.axes[0], p.timing.t3_s).is_ok());
+    assert!(axisbench::drive::check_stability(&p.axes[0], p.timing.t3_s).is_ok());
     // kv·α·T3/M far above 4 − 2α: the discrete velocity loop with its current lag diverges.
     p.axes[0].servo.kv_n_s_per_m = 5.0e8;
     p.axes[0].servo.torque_limit_nm = 1e9;
-    let e = axisbench::servo::check_stability(&p.axes[0], p.timing.t3_s).expect_err("unstable");
+    let e = axisbench::drive::check_stability(&p.axes[0], p.timing.t3_s).expect_err("unstable");
     assert!(e.contains("unstable"), "{e}");
     // And the simulation really does diverge with those gains (the check is not just a rule).
     let mut m = axisbench::Machine::new(
@@ -400,9 +399,10 @@ fn stability_check_rejects_an_unstable_loop_and_accepts_the_presets() {
         &[("t".into(), "G05P4\nU0.01\nG04 P50\nM30\n".into())],
     )
     .expect("machine");
-    m.axes[0].servo.retune(&p.axes[0]);
-    m.run(0.05);
-    let pos = col(&m.trace, "x.pos");
-    let diverged = pos.iter().any(|&x| !x.is_finite() || x.abs() > 1.0);
-    assert!(diverged, "an unstable loop stayed bounded");
+    m.axes[0].axis_loop.retune(&p.axes[0]);
+    let r = m.run(0.05);
+    assert!(
+        matches!(r, Err(axisbench::machine::MachineError::Diverged { .. })),
+        "an unstable loop stayed bounded: {r:?}"
+    );
 }

@@ -2,20 +2,15 @@
 
 use std::path::PathBuf;
 
-use axisbench::trace::{Mapping, Trace, TraceError};
+use axisbench::trace::{self, Mapping, Trace, TraceError};
 
 use crate::common::{plain, run};
-
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("axisbench-it-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("tmp dir");
-    dir.join(name)
-}
 
 #[test]
 fn csv_round_trip_is_exact() {
     let m = run(&plain(), "G90 G01 X12.345 F2000\nM30\n");
-    let path = tmp("rt.csv");
+    let dir = tempfile::tempdir().expect("tmp dir");
+    let path = dir.path().join("rt.csv");
     m.trace.write_csv(&path).expect("write");
     let back = Trace::read_csv(&path, None).expect("read");
     assert_eq!(back.meta, m.trace.meta);
@@ -113,4 +108,274 @@ fn real_emps_record_reads_through_the_mapping() {
     let pos = t.values("x.pos").expect("pos");
     let max = pos.iter().cloned().fold(f64::MIN, f64::max);
     assert!((max - 246.378).abs() < 0.01, "max position {max} mm");
+}
+
+/// A clean 1 kHz trace of `n` rows, with `f(i)` replacing row i's time when it returns Some.
+fn timed(n: usize, f: impl Fn(usize) -> Option<String>) -> String {
+    let mut s = String::from("t[s],x.cmd[mm],x.pos[mm]\n");
+    for i in 0..n {
+        let t = f(i).unwrap_or_else(|| format!("{}", i as f64 * 0.001));
+        s += &format!("{t},{i},{i}\n");
+    }
+    s
+}
+
+#[test]
+fn bom_and_crlf_are_accepted() {
+    let text = "\u{feff}# source: logger\r\nt[s],x.cmd[mm],x.pos[mm]\r\n0,1,2\r\n0.1,3,4\r\n";
+    let t = Trace::from_csv_str(text, "crlf.csv", None).expect("BOM + CRLF");
+    assert_eq!(t.meta("source"), Some("logger"));
+    assert_eq!(t.t(), &[0.0, 0.1]);
+    assert_eq!(t.values("x.pos").expect("pos"), &[2.0, 4.0]);
+    // A BOM right before the header (no metadata) used to give a "1:1" error.
+    let text = "\u{feff}t[s],x.cmd[mm],x.pos[mm]\r\n0,1,2\r\n";
+    let t = Trace::from_csv_str(text, "bom.csv", None).expect("BOM before the header");
+    assert_eq!(t.signals[0].name, "t");
+}
+
+#[test]
+fn units_must_measure_what_the_signal_means() {
+    let cases = [
+        (
+            "t[s],x.cmd[mm/s],x.pos[mm]",
+            "column 2 'x.cmd[mm/s]': x.cmd is a length (m, mm, um), not a velocity",
+        ),
+        (
+            "t[s],x.cmd[mm],x.pos[degC]",
+            "column 3 'x.pos[degC]': x.pos is a length",
+        ),
+        (
+            "t[mm],x.cmd[mm],x.pos[mm]",
+            "column 1 't[mm]': t is a time (s, ms), not a length",
+        ),
+        (
+            "t[s],x.cmd[mm],x.pos[mm],x.torque[N]",
+            "column 4 'x.torque[N]': x.torque is a torque (N*m), not a force",
+        ),
+        (
+            "t[s],x.cmd[mm],x.pos[mm],temp.screw[mm]",
+            "temp.screw is a temperature (degC)",
+        ),
+        (
+            "t[s],x.cmd[mm],x.pos[mm],mode[s]",
+            "mode is a plain number (none), not a time",
+        ),
+        (
+            "t[s],x.cmd,x.pos[mm]",
+            "column 2 'x.cmd': x.cmd is a length (m, mm, um), not a plain number",
+        ),
+        (
+            "t[s],x.cmd[mm],x.pos[mm],x.vel[N*m]",
+            "x.vel is a velocity (m/s, mm/s, mm/min)",
+        ),
+    ];
+    for (header, needle) in cases {
+        let e =
+            Trace::from_csv_str(&format!("{header}\n0,0,0,0\n"), "u.csv", None).expect_err(header);
+        assert!(matches!(e, TraceError::Layout { .. }), "{e}");
+        assert!(e.to_string().contains(needle), "{header}: {e}");
+    }
+    // The quadrant compensation may be a torque, a velocity or a position; unknown signals
+    // keep any accepted unit.
+    let ok = "t[ms],x.cmd[um],x.pos[m],x.quadrant_comp[N*m],y.cmd[mm],y.pos[mm],y.quadrant_comp[mm/s],x.quadrant_pa[mm/min],x.current[A],x.meas[mm],mode.ch2[]\n0,1,2,3,4,5,6,60,1,,0\n";
+    let t = Trace::from_csv_str(ok, "ok.csv", None).expect("units fit");
+    assert_eq!(t.values("x.quadrant_pa").expect("pa"), &[1.0]);
+    assert_eq!(t.values("x.cmd").expect("cmd"), &[0.001]);
+    // Mappings are checked the same way.
+    let e = Mapping::parse("t[s]=t_s, x.cmd[N]=qg_m, x.pos[m]=qm_m").expect_err("bad unit");
+    assert!(e.to_string().contains("x.cmd is a length"), "{e}");
+}
+
+#[test]
+fn time_stamps_must_be_finite_and_increase_without_jumps() {
+    let e = Trace::from_csv_str(
+        &timed(20, |i| (i == 5).then(|| "inf".into())),
+        "t.csv",
+        None,
+    )
+    .expect_err("inf");
+    assert_eq!(
+        e.to_string(),
+        "t.csv:7: column 1 't[s]': 'inf' is not a finite number"
+    );
+    let e = Trace::from_csv_str(
+        &timed(20, |i| (i == 5).then(|| "0.004".into())),
+        "t.csv",
+        None,
+    )
+    .expect_err("repeat");
+    assert_eq!(
+        e.to_string(),
+        "t.csv:7: time 0.004 s does not increase (line 6: 0.004 s)"
+    );
+    // One wild time stamp in a 1 kHz record: the jump into it and the step back, both naming it.
+    let e = Trace::from_csv_str(
+        &timed(20_000, |i| (i == 10_000).then(|| "1e17".into())),
+        "j.csv",
+        None,
+    )
+    .expect_err("jump");
+    let TraceError::Rows {
+        findings, omitted, ..
+    } = &e
+    else {
+        panic!("{e}")
+    };
+    assert_eq!(*omitted, 0);
+    assert_eq!(findings.len(), 2, "{e}");
+    assert_eq!(findings[0].line, 10_002);
+    assert!(
+        findings[0].reason.starts_with("time 1e17 s jumps")
+            && findings[0]
+                .reason
+                .contains("1000 × the median spacing 0.001 s"),
+        "{e}"
+    );
+    assert_eq!(findings[1].line, 10_003);
+    assert!(
+        findings[1]
+            .reason
+            .contains("does not increase (line 10002: 1e17 s)"),
+        "{e}"
+    );
+    // The last row too.
+    let e = Trace::from_csv_str(
+        &timed(2000, |i| (i == 1999).then(|| "1e17".into())),
+        "j.csv",
+        None,
+    )
+    .expect_err("last row jump");
+    assert!(
+        e.to_string().starts_with("j.csv:2001: time 1e17 s jumps"),
+        "{e}"
+    );
+    // The rule: more than 1000 × the median spacing and more than 1 s. A 0.9 s pause in a
+    // 1 kHz record, and a 5 s gap in a 10 Hz one, are records, not errors.
+    Trace::from_csv_str(
+        &timed(2000, |i| {
+            (i >= 1000).then(|| format!("{}", 0.9 + i as f64 * 0.001))
+        }),
+        "p.csv",
+        None,
+    )
+    .expect("a 0.9 s pause");
+    let slow = |i: usize| {
+        Some(format!(
+            "{}",
+            i as f64 * 0.1 + if i >= 50 { 5.0 } else { 0.0 }
+        ))
+    };
+    Trace::from_csv_str(&timed(100, slow), "p.csv", None).expect("a 5 s gap at 10 Hz");
+    let e = Trace::from_csv_str(
+        &timed(2000, |i| {
+            (i >= 1000).then(|| format!("{}", 5.0 + i as f64 * 0.001))
+        }),
+        "p.csv",
+        None,
+    )
+    .expect_err("a 5 s gap at 1 kHz");
+    assert!(
+        e.to_string()
+            .starts_with("p.csv:1002: time 6 s jumps 5.001 s after line 1001"),
+        "{e}"
+    );
+}
+
+#[test]
+fn many_bad_rows_give_the_first_twenty_and_a_count() {
+    let mut text = String::from("t[s],x.cmd[mm],x.pos[mm]\n");
+    for i in 0..100_000 {
+        text += &format!("{},abc,0\n", i as f64 * 0.001);
+    }
+    let e = Trace::from_csv_str(&text, "many.csv", None).expect_err("bad");
+    let TraceError::Rows {
+        findings, omitted, ..
+    } = &e
+    else {
+        panic!("{e}")
+    };
+    assert_eq!(findings.len(), trace::MAX_REPORTED_ERRORS);
+    assert_eq!(*omitted, 100_000 - 20);
+    assert_eq!(findings[0].line, 2);
+    assert_eq!(
+        findings[0].reason,
+        "column 2 'x.cmd[mm]': 'abc' is not a number"
+    );
+    let shown = e.to_string();
+    assert!(shown.chars().count() < 4000, "{} chars", shown.len());
+    assert!(
+        shown.ends_with("… and 99980 more rows in error (100000 in all)"),
+        "{shown}"
+    );
+    // Long cells are quoted short.
+    let long = format!("t[s],x.cmd[mm],x.pos[mm]\n0,{},0\n", "x".repeat(100_000));
+    let e = Trace::from_csv_str(&long, "long.csv", None).expect_err("bad");
+    assert!(e.to_string().len() < 200, "{e}");
+}
+
+#[test]
+fn cells_name_their_line_and_column() {
+    let e = Trace::from_csv_str("t[s],x.cmd[mm],x.pos[mm]\n0,0,0\n0.1,0\n", "s.csv", None)
+        .expect_err("short row");
+    assert_eq!(
+        e.to_string(),
+        "s.csv:3: the row has 2 cells; the header has 3"
+    );
+    let e = Trace::from_csv_bytes(b"t[s],x.cmd[mm],x.pos[mm]\n0,0,\xff\n", "b.csv", None)
+        .expect_err("not UTF-8");
+    assert_eq!(
+        e.to_string(),
+        "b.csv:2: column 3 'x.pos[mm]': the cell is not UTF-8 text"
+    );
+    let e = Trace::from_csv_str("t[s],x.cmd[mm],x.pos[mm]\n,0,0\n", "e.csv", None)
+        .expect_err("empty time");
+    assert_eq!(e.to_string(), "e.csv:2: column 1 't[s]': time t is empty");
+    // A finite value that overflows on conversion.
+    let e = Trace::from_csv_str("t[s],x.cmd[m],x.pos[mm]\n0,1e308,0\n", "o.csv", None)
+        .expect_err("overflow");
+    assert!(
+        e.to_string()
+            .contains("column 2 'x.cmd[m]': '1e308' is out of range in mm"),
+        "{e}"
+    );
+    // Empty cells are "not measured", not errors.
+    let t = Trace::from_csv_str("t[s],x.cmd[mm],x.pos[mm]\n0,0,\n", "ok.csv", None).expect("empty");
+    assert!(t.values("x.pos").expect("pos")[0].is_nan());
+}
+
+#[test]
+fn lines_are_bounded() {
+    let long = format!(
+        "# note: {}\nt[s],x.cmd[mm],x.pos[mm]\n0,0,0\n",
+        "x".repeat(trace::MAX_LINE_BYTES)
+    );
+    let e = Trace::from_csv_str(&long, "m.csv", None).expect_err("long metadata");
+    assert!(
+        e.to_string().starts_with("m.csv:1: line longer than"),
+        "{e}"
+    );
+    let long = format!(
+        "# a: b\nt[s],x.cmd[mm],x.pos[mm]\n0,0,0\n0.1,{},0\n",
+        "1".repeat(trace::MAX_LINE_BYTES)
+    );
+    let e = Trace::from_csv_str(&long, "r.csv", None).expect_err("long row");
+    assert!(
+        e.to_string()
+            .starts_with("r.csv:4: line longer than 1048576 bytes"),
+        "{e}"
+    );
+}
+
+#[test]
+fn readers_bytes_and_files_read_the_same() {
+    let m = run(&plain(), "G90 G01 X3 F2000\nM30\n");
+    let dir = tempfile::tempdir().expect("tmp dir");
+    let path = dir.path().join("same.csv");
+    m.trace.write_csv(&path).expect("write");
+    let bytes = std::fs::read(&path).expect("read back");
+    let a = Trace::read_csv(&path, None).expect("file");
+    let b = Trace::from_csv_bytes(&bytes, "same.csv", None).expect("bytes");
+    let c = Trace::from_reader(std::io::Cursor::new(&bytes), "same.csv", None).expect("reader");
+    assert_eq!(a, b);
+    assert_eq!(a, c);
 }

@@ -1,0 +1,399 @@
+//! Calibrate first, then look for effects.
+//!
+//! A nominal preset is never exact: masses, friction and gains are off by a few per cent.
+//! Left alone, that mismatch is the largest residual, and whichever candidate mimics it
+//! best (a delay, a viscous correction) gets the blame. So the nominal's own parameters are
+//! re-fitted first, within ±8 % (the nominal offsets a real machine has, with margin), and
+//! reported as calibration.
+//!
+//! At the same time each measured channel gets a time shift: position and force may be
+//! logged a little before or after the instant the command was. A shift common to both is
+//! how the machine responds late (a command delay, left to that candidate); a shift of one
+//! channel alone is a logging skew, a measurement finding, and is removed from the record
+//! before any effect is tested.
+
+use std::cell::RefCell;
+
+use serde::Serialize;
+
+use super::engine::{Cand, Engine, at};
+use super::lm::{self, Param};
+use super::replay::{Record, SimOut};
+use super::{DiagnoseError, Effect};
+use crate::preset::AxisParams;
+
+/// Largest calibration change: beyond it a parameter is not mis-set but missing an effect.
+/// Nominals are typically off by a few per cent; a mass and a force constant off in
+/// opposite directions make close to 8 %.
+pub const MAX_RATIO_CHANGE: f64 = 0.08;
+/// Largest channel shift searched, samples.
+const MAX_SHIFT: f64 = 8.0;
+/// A channel shift smaller than this is not a finding, samples.
+pub const MIN_SKEW: f64 = 0.2;
+/// Two free channel shifts must explain this much more of the residual than one common
+/// shift does before a skew is called: an unmodelled friction term also moves the shifts a
+/// little, a logging skew moves one channel's whole residual.
+const MIN_SKEW_GAIN: f64 = 0.3;
+
+/// A nominal parameter the calibration re-fits, as a ratio to its nominal value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CalParam {
+    /// The moving mass: table and the motor's reflected inertia.
+    Mass,
+    /// Viscous friction.
+    Viscous,
+    /// Coulomb (and breakaway) friction, when the nominal has it.
+    Coulomb,
+    /// Position-loop gain.
+    Kp,
+    /// Velocity-loop gain.
+    Kv,
+}
+
+impl CalParam {
+    /// The name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            CalParam::Mass => "mass",
+            CalParam::Viscous => "viscous_friction",
+            CalParam::Coulomb => "coulomb_friction",
+            CalParam::Kp => "kp",
+            CalParam::Kv => "kv",
+        }
+    }
+
+    /// The parameters worth calibrating on `a`: those it has (a Coulomb level of 0 is an
+    /// effect left out, not a value to scale).
+    pub fn of(a: &AxisParams) -> Vec<CalParam> {
+        let mut v = vec![CalParam::Mass];
+        if a.friction.enabled && a.friction.viscous_n_s_per_m > 0.0 {
+            v.push(CalParam::Viscous);
+        }
+        if a.friction.enabled && a.friction.coulomb_n > 0.0 {
+            v.push(CalParam::Coulomb);
+        }
+        v.extend([CalParam::Kp, CalParam::Kv]);
+        v
+    }
+
+    /// Scales this parameter of `a` by `ratio`.
+    pub fn apply(self, a: &mut AxisParams, ratio: f64) {
+        match self {
+            CalParam::Mass => {
+                a.drive.table_mass_kg *= ratio;
+                a.drive.motor_inertia_kgm2 *= ratio;
+            }
+            CalParam::Viscous => a.friction.viscous_n_s_per_m *= ratio,
+            CalParam::Coulomb => {
+                a.friction.coulomb_n *= ratio;
+                a.friction.stribeck.static_n *= ratio;
+            }
+            CalParam::Kp => a.servo.kp_per_s *= ratio,
+            CalParam::Kv => a.servo.kv_n_s_per_m *= ratio,
+        }
+    }
+}
+
+/// A measured channel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Channel {
+    /// The command.
+    Cmd,
+    /// The position.
+    Pos,
+    /// The force.
+    Force,
+}
+
+/// A channel logged off its instant: it shows the value of `samples` periods later (+) or
+/// earlier (−) than its time stamp.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Skew {
+    /// Which channel.
+    pub channel: Channel,
+    /// How far, in samples.
+    pub samples: f64,
+}
+
+/// What the calibration found.
+#[derive(Debug, Clone, Serialize)]
+pub struct Calibration {
+    /// Each re-fitted parameter and its ratio to the nominal.
+    pub ratios: Vec<(CalParam, f64)>,
+    /// Parameters that hit the ±8 % bound: the nominal lacks more than a correction.
+    pub at_bound: Vec<CalParam>,
+    /// Fitted time shift of the position channel against the model, samples.
+    pub pos_shift_samples: f64,
+    /// Fitted time shift of the force channel, samples.
+    pub force_shift_samples: f64,
+    /// A one-channel logging skew, removed from the record before effects are tested.
+    pub skew: Option<Skew>,
+    /// The lag both responses share (−: the machine responds late), samples: a command
+    /// delay, or the command logged early, which a record cannot tell apart.
+    pub common_lag_samples: f64,
+    /// Held-out combined residual of the nominal and of the calibrated model (normalised).
+    pub j_nominal: f64,
+    /// … after calibration and skew removal.
+    pub j_calibrated: f64,
+}
+
+impl Calibration {
+    /// The calibrated model: `nominal` with the ratios applied.
+    pub fn apply(&self, nominal: &Cand) -> Cand {
+        let mut c = nominal.clone();
+        for &(p, r) in &self.ratios {
+            p.apply(&mut c.model.axis, r);
+        }
+        c
+    }
+
+    /// A one-line summary for reports.
+    pub fn summary(&self) -> String {
+        let r: Vec<String> = self
+            .ratios
+            .iter()
+            .map(|(p, r)| format!("{} ×{:.3}", p.name(), r))
+            .collect();
+        let skew = match self.skew {
+            Some(s) => format!(
+                "; {:?} channel logged {:+.2} samples off and realigned",
+                s.channel, s.samples
+            ),
+            None => String::new(),
+        };
+        format!("{}{skew}", r.join(", "))
+    }
+}
+
+/// `base` with ratios `r` applied to the parameters `ps`, and the nuisance friction
+/// `nuisance` = [Coulomb force added, constant force] (N).
+fn with_ratios(base: &Cand, ps: &[CalParam], r: &[f64], nuisance: &[f64]) -> Cand {
+    let mut c = base.clone();
+    for (&p, &x) in ps.iter().zip(r) {
+        p.apply(&mut c.model.axis, x);
+    }
+    if let [fc, f0] = nuisance {
+        Effect::CoulombFriction.apply(&[*fc], &mut c.model);
+        Effect::ConstantForce.apply(&[*f0], &mut c.model);
+    }
+    c
+}
+
+/// Friction a nominal left out (a Coulomb level, a constant force) is nearly always there
+/// and would otherwise pull the mass, the viscous friction and the gains off their values
+/// to mimic it. The calibration therefore fits both alongside, as nuisance parameters, and
+/// keeps only the ratios: whether the friction is really there is the candidates' question.
+const N_NUISANCE: usize = 2;
+
+/// Fits ratios and (if `shifts`) the two channel shifts on the engine's fitting part.
+fn fit_ratios(
+    eng: &Engine,
+    base: &Cand,
+    ps: &[CalParam],
+    shifts: bool,
+) -> Result<(Vec<f64>, f64, f64), DiagnoseError> {
+    let n = ps.len();
+    let force_scale = (0.01 * base.model.axis.drive.total_mass_kg() * 9.81).max(1.0);
+    let mut params: Vec<Param> = ps
+        .iter()
+        .map(|_| Param {
+            lo: 1.0 - MAX_RATIO_CHANGE,
+            hi: 1.0 + MAX_RATIO_CHANGE,
+            scale: 1.0,
+        })
+        .collect();
+    params.push(Param {
+        lo: 0.0,
+        hi: 1e4,
+        scale: force_scale,
+    });
+    params.push(Param {
+        lo: -1e4,
+        hi: 1e4,
+        scale: force_scale,
+    });
+    let m = n + N_NUISANCE;
+    if shifts {
+        let sh = Param {
+            lo: -MAX_SHIFT,
+            hi: MAX_SHIFT,
+            scale: 1.0,
+        };
+        params.extend([sh, sh]);
+    }
+    // The shifts only move the simulated output, so a replay is reused while the ratios
+    // stay the same.
+    let cache: RefCell<Option<(Vec<f64>, SimOut)>> = RefCell::new(None);
+    let rows = |th: &[f64]| {
+        let model_part = &th[..m];
+        let hit = cache
+            .borrow()
+            .as_ref()
+            .is_some_and(|(r, _)| r == model_part);
+        if !hit {
+            let s = eng.sim_fit(&with_ratios(base, ps, &th[..n], &th[n..m]))?;
+            *cache.borrow_mut() = Some((model_part.to_vec(), s));
+        }
+        let c = cache.borrow();
+        let Some((_, s)) = c.as_ref() else {
+            return Ok(None);
+        };
+        let (up, uf) = if shifts {
+            (th[m], th[m + 1])
+        } else {
+            (0.0, 0.0)
+        };
+        Ok(Some(eng.lm_rows_shifted(s, up, uf)))
+    };
+    let mut start = vec![1.0; n];
+    start.extend([0.0; N_NUISANCE]);
+    if shifts {
+        start.extend([0.0, 0.0]);
+    }
+    let f = lm::fit(&start, &params, &rows, 0.01, 8)?;
+    let (up, uf) = if shifts {
+        (f.theta[m], f.theta[m + 1])
+    } else {
+        (0.0, 0.0)
+    };
+    if shifts && eng.has_force && (up - uf).abs() >= MIN_SKEW {
+        // The best single common shift for the same replay.
+        let c = cache.borrow();
+        if let Some((_, s)) = c.as_ref() {
+            let cost = |u: f64, w: f64| eng.lm_rows_shifted(s, u, w).norm_squared();
+            let both = cost(up, uf);
+            let common = (0..=40)
+                .map(|i| up.min(uf) + (up - uf).abs() * f64::from(i) / 40.0)
+                .map(|u| cost(u, u))
+                .fold(f64::INFINITY, f64::min);
+            if both > (1.0 - MIN_SKEW_GAIN) * common {
+                let mid = 0.5 * (up + uf);
+                return Ok((f.theta[..n].to_vec(), mid, mid));
+            }
+        }
+    }
+    Ok((f.theta[..n].to_vec(), up, uf))
+}
+
+/// Decides what the two channel shifts mean. Equal shifts are a common lag (a command
+/// delay), or, when the responses lead the command, the command logged late. Different
+/// shifts are a skew of one channel; the force is a held value, so its skew comes in whole
+/// samples, and a fractional difference must be the position's.
+pub fn classify_shifts(pos: f64, force: Option<f64>) -> (Option<Skew>, f64) {
+    let Some(force) = force else {
+        // Position alone: a lead is a skew of the command or the position; a lag is a delay.
+        return if pos > MIN_SKEW {
+            (
+                Some(Skew {
+                    channel: Channel::Pos,
+                    samples: pos,
+                }),
+                0.0,
+            )
+        } else {
+            (None, pos)
+        };
+    };
+    let diff = pos - force;
+    if diff.abs() < MIN_SKEW {
+        let common = 0.5 * (pos + force);
+        if common > MIN_SKEW {
+            return (
+                Some(Skew {
+                    channel: Channel::Cmd,
+                    samples: -common,
+                }),
+                0.0,
+            );
+        }
+        return (None, common);
+    }
+    let whole = (diff - diff.round()).abs() < 0.15;
+    // Position skewed: the force shows the common lag, which must not be a lead.
+    let pos_ok = force <= MIN_SKEW;
+    // Force skewed: the position shows the common lag.
+    let force_ok = whole && pos <= MIN_SKEW;
+    let pos_skew = (
+        Some(Skew {
+            channel: Channel::Pos,
+            samples: diff,
+        }),
+        force.min(0.0),
+    );
+    let force_skew = (
+        Some(Skew {
+            channel: Channel::Force,
+            samples: -diff,
+        }),
+        pos.min(0.0),
+    );
+    match (pos_ok, force_ok) {
+        (true, false) => pos_skew,
+        (false, true) => force_skew,
+        // Both readings possible: the simpler one (no common lag) wins; else the position.
+        (true, true) if force.abs() > pos.abs() + MIN_SKEW => force_skew,
+        _ => pos_skew,
+    }
+}
+
+/// The record with a skewed channel realigned to its time stamps.
+pub fn deskew(rec: &Record, skew: &Skew) -> Record {
+    let shift = |v: &[f64]| -> Vec<f64> {
+        (0..v.len())
+            .map(|k| at(v, k as f64 - skew.samples))
+            .collect()
+    };
+    let mut r = rec.clone();
+    match skew.channel {
+        Channel::Pos => r.pos_m = shift(&rec.pos_m),
+        Channel::Force => r.force_n = rec.force_n.as_deref().map(shift),
+        Channel::Cmd => {
+            r.cmd_m = shift(&rec.cmd_m);
+            r.comp_m = rec.comp_m.as_deref().map(shift);
+        }
+    }
+    r
+}
+
+/// Fits the ratios and the channel shifts on `eng`'s fitting part.
+pub fn fit(eng: &Engine, nominal: &Cand) -> Result<Calibration, DiagnoseError> {
+    let ps = CalParam::of(&nominal.model.axis);
+    let (ratios, up, uf) = fit_ratios(eng, nominal, &ps, true)?;
+    let (skew, common) = classify_shifts(up, eng.has_force.then_some(uf));
+    let at_bound = ps
+        .iter()
+        .zip(&ratios)
+        .filter(|(_, r)| (*r - 1.0).abs() > MAX_RATIO_CHANGE - 0.005)
+        .map(|(p, _)| *p)
+        .collect();
+    Ok(Calibration {
+        ratios: ps.into_iter().zip(ratios).collect(),
+        at_bound,
+        pos_shift_samples: up,
+        force_shift_samples: uf,
+        skew,
+        common_lag_samples: common,
+        j_nominal: 0.0,
+        j_calibrated: 0.0,
+    })
+}
+
+/// Re-fits the ratios alone (after the skew is removed), starting from `cal`'s.
+pub fn refit_ratios(
+    eng: &Engine,
+    nominal: &Cand,
+    cal: &mut Calibration,
+) -> Result<(), DiagnoseError> {
+    let ps: Vec<CalParam> = cal.ratios.iter().map(|(p, _)| *p).collect();
+    let (ratios, _, _) = fit_ratios(eng, nominal, &ps, false)?;
+    cal.at_bound = ps
+        .iter()
+        .zip(&ratios)
+        .filter(|(_, r)| (*r - 1.0).abs() > MAX_RATIO_CHANGE - 0.005)
+        .map(|(p, _)| *p)
+        .collect();
+    cal.ratios = ps.into_iter().zip(ratios).collect();
+    Ok(())
+}

@@ -1,0 +1,330 @@
+//! Signatures of the friction-type effects in the force residual: a term that follows the
+//! direction of motion (Coulomb), the speed (viscous), low speeds only (Stribeck), short
+//! reversing strokes (stroke friction) or nothing at all (a constant force). Each is one
+//! column of a least-squares regression of the residual on the measured motion; the
+//! others are fitted alongside so that one does not pass for another. The residual is
+//! correlated over many samples, which the standard errors account for.
+
+use super::{Context, Evidence, MIN_T};
+use crate::diagnose::calibrate::CalParam;
+use crate::diagnose::effects::Effect;
+use crate::diagnose::engine::corr_length;
+use crate::diagnose::evidence::{self, Regression};
+use crate::units::{mm_per_s_to_m_per_s, mm_to_m};
+
+/// Below this measured speed the axis counts as standing (friction there is static, not a
+/// function of speed), m/s.
+const MOVING_MPS: f64 = 5e-4;
+
+/// Direction of motion: ±1 while moving, 0 at rest.
+fn dir(v: f64) -> f64 {
+    if v > MOVING_MPS {
+        1.0
+    } else if v < -MOVING_MPS {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+/// The columns every friction regression carries: direction, speed, acceleration (a mass
+/// left over after calibration) and a constant.
+fn base_columns(ctx: &Context) -> Vec<Vec<f64>> {
+    let s = ctx.sig;
+    vec![
+        s.vel_mps.iter().map(|&v| dir(v)).collect(),
+        s.vel_mps.clone(),
+        s.acc_mps2.clone(),
+        vec![1.0; s.vel_mps.len()],
+    ]
+}
+
+/// Regresses the force residual on `cols`. The residual the terms leave is what the
+/// standard errors describe, so its correlation length is measured after a first pass (the
+/// base residual's own is mostly the effect under test, and far longer).
+///
+/// Only samples in motion enter: at rest the slide holds whatever force stiction allows,
+/// which says nothing about friction as a function of speed and swamps every term.
+fn regress(ctx: &Context, cols: &[Vec<f64>]) -> Option<Regression> {
+    let y_all = ctx.sig.r_force.as_ref()?;
+    let moving: Vec<usize> = (0..y_all.len())
+        .filter(|&k| ctx.sig.vel_mps[k].abs() >= MOVING_MPS)
+        .collect();
+    let pick = |v: &[f64]| -> Vec<f64> { moving.iter().map(|&k| v[k]).collect() };
+    let y = pick(y_all);
+    let cols: Vec<Vec<f64>> = cols.iter().map(|c| pick(c)).collect();
+    let c: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
+    let first = evidence::regress(&c, &y, 1.0)?;
+    let left: Vec<f64> = y
+        .iter()
+        .enumerate()
+        .map(|(k, v)| {
+            v - c
+                .iter()
+                .zip(&first.coef)
+                .map(|(col, b)| col[k] * b)
+                .sum::<f64>()
+        })
+        .collect();
+    evidence::regress(&c, &y, corr_length(&left))
+}
+
+/// `t` of coefficient `i`.
+fn t_of(r: &Regression, i: usize) -> f64 {
+    if r.stderr[i] > 0.0 {
+        r.coef[i] / r.stderr[i]
+    } else {
+        0.0
+    }
+}
+
+/// The short-stroke level at every sample for a pitch `pitch_m`: each stroke between two
+/// reversals shorter than the pitch adds one, a longer one resets it.
+fn stroke_level(vel: &[f64], pos: &[f64], pitch_m: f64) -> Vec<f64> {
+    let mut out = Vec::with_capacity(vel.len());
+    let (mut level, mut last_dir, mut rev_pos) = (0.0, 0.0, pos.first().copied().unwrap_or(0.0));
+    for (&v, &x) in vel.iter().zip(pos) {
+        let d = dir(v);
+        if d != 0.0 && d != last_dir {
+            if last_dir != 0.0 {
+                level = if (x - rev_pos).abs() < pitch_m {
+                    level + 1.0
+                } else {
+                    0.0
+                };
+            }
+            rev_pos = x;
+            last_dir = d;
+        }
+        out.push(d * (1.0 - (-level / 3.0f64).exp()));
+    }
+    out
+}
+
+/// The signature of a friction-type effect.
+pub fn evidence(ctx: &Context, effect: Effect) -> Evidence {
+    if ctx.sig.r_force.is_none() {
+        return Evidence {
+            pass: true,
+            text: "no force recorded: judged by the held-out shrink alone".into(),
+            ..Evidence::default()
+        };
+    }
+    match effect {
+        Effect::StribeckFriction => stribeck(ctx),
+        Effect::StrokeFriction => stroke(ctx),
+        _ => linear(ctx, effect),
+    }
+}
+
+/// Coulomb, viscous and constant force: one regression, one column each.
+fn linear(ctx: &Context, effect: Effect) -> Evidence {
+    let Some(r) = regress(ctx, &base_columns(ctx)) else {
+        return Evidence::absent("the force residual could not be regressed");
+    };
+    let (col, name, unit) = match effect {
+        Effect::CoulombFriction => (0, "direction-of-motion term", "n"),
+        Effect::ViscousFriction => (1, "speed term", "n_s_per_m"),
+        _ => (3, "constant term", "n"),
+    };
+    let t = t_of(&r, col);
+    let c = r.coef[col];
+    let mut pass = t.abs() >= MIN_T;
+    let mut why = String::new();
+    match effect {
+        // More friction than the model resists motion: the motor pushes harder along it.
+        Effect::CoulombFriction if c <= 0.0 => {
+            pass = false;
+            why = " (negative: less friction than the model, a calibration matter)".into();
+        }
+        Effect::ViscousFriction => {
+            let cal_at_bound = ctx.at_bound(CalParam::Viscous);
+            let nominal_has = ctx.base.model.axis.friction.viscous_n_s_per_m > 0.0;
+            if nominal_has && !cal_at_bound {
+                pass = false;
+                why = " (within what the calibration of the nominal's viscous friction covers)"
+                    .into();
+            }
+        }
+        _ => {}
+    }
+    let hint = match effect {
+        // The residual is the motor's extra force; a force on the table is opposed by it.
+        Effect::ConstantForce => vec![-c],
+        _ => vec![c],
+    };
+    Evidence {
+        pass,
+        text: format!(
+            "{name} of the force residual {c:.3} {unit} ({t:.1} standard errors){why}",
+            unit = unit.replace('_', "·")
+        ),
+        hint,
+        ..Evidence::default()
+    }
+    .with(&format!("coefficient_{unit}"), c)
+    .with("t", t)
+    .with("explained_share", r.explained)
+}
+
+/// Stribeck: an extra force at low speed, falling off with a characteristic velocity,
+/// searched over a few velocities.
+fn stribeck(ctx: &Context) -> Evidence {
+    let base = base_columns(ctx);
+    let mut best: Option<(f64, f64, f64)> = None;
+    for vs_mm_s in [0.5, 1.0, 2.0, 4.0, 8.0, 16.0] {
+        let vs = mm_per_s_to_m_per_s(vs_mm_s);
+        let g: Vec<f64> = ctx
+            .sig
+            .vel_mps
+            .iter()
+            .map(|&v| dir(v) * (-(v / vs).powi(2)).exp())
+            .collect();
+        let mut cols = base.clone();
+        cols.push(g);
+        if let Some(r) = regress(ctx, &cols) {
+            let t = t_of(&r, 4);
+            if best.is_none_or(|b| t > b.1) {
+                best = Some((vs_mm_s, t, r.coef[4]));
+            }
+        }
+    }
+    let Some((vs, t, c)) = best else {
+        return Evidence::absent("the force residual could not be regressed");
+    };
+    Evidence {
+        pass: t >= MIN_T && c > 0.0,
+        text: format!(
+            "low-speed excess of the force residual {c:.2} N at a Stribeck velocity of {vs} mm/s ({t:.1} standard errors)"
+        ),
+        hint: vec![c.max(0.0), vs],
+        ..Evidence::default()
+    }
+    .with("excess_n", c)
+    .with("velocity_mm_per_s", vs)
+    .with("t", t)
+}
+
+/// Stroke friction: friction that grows over successive short strokes, searched over a few
+/// pitches.
+fn stroke(ctx: &Context) -> Evidence {
+    let base = base_columns(ctx);
+    let mut best: Option<(f64, f64, f64)> = None;
+    for pitch_mm in [1.0, 2.0, 4.0, 8.0, 16.0, 32.0] {
+        let lvl = stroke_level(&ctx.sig.vel_mps, &ctx.sig.pos_m, mm_to_m(pitch_mm));
+        if lvl.iter().all(|x| *x == 0.0) {
+            continue;
+        }
+        let mut cols = base.clone();
+        cols.push(lvl);
+        if let Some(r) = regress(ctx, &cols) {
+            let t = t_of(&r, 4);
+            if best.is_none_or(|b| t > b.1) {
+                best = Some((pitch_mm, t, r.coef[4]));
+            }
+        }
+    }
+    let Some((pitch, t, c)) = best else {
+        return Evidence::absent("no short reversing strokes in the fitting data");
+    };
+    Evidence {
+        pass: t >= MIN_T && c > 0.0,
+        text: format!(
+            "friction rising by {c:.2} N over strokes shorter than {pitch} mm ({t:.1} standard errors)"
+        ),
+        hint: vec![c.max(0.0), pitch],
+        ..Evidence::default()
+    }
+    .with("rise_n", c)
+    .with("pitch_mm", pitch)
+    .with("t", t)
+}
+
+/// Backlash: the residual gathers at the reversals, where the drive crosses its play.
+pub fn reversal_evidence(ctx: &Context, effect: Effect) -> Evidence {
+    let s = ctx.sig;
+    let y: &[f64] = match &s.r_force {
+        Some(f) => f,
+        None => &s.r_pos,
+    };
+    let n = y.len();
+    let half = ((0.03 / ctx.eng.split.main.t3_s).round() as usize).max(1);
+    let mut near = vec![false; n];
+    let mut reversals = 0usize;
+    let mut last = 0.0;
+    for (k, &v) in s.vel_mps.iter().enumerate() {
+        let d = dir(v);
+        if d != 0.0 && last != 0.0 && d != last {
+            reversals += 1;
+            for m in near
+                .iter_mut()
+                .take((k + half).min(n))
+                .skip(k.saturating_sub(half))
+            {
+                *m = true;
+            }
+        }
+        if d != 0.0 {
+            last = d;
+        }
+    }
+    if reversals < 3 {
+        return Evidence::absent("fewer than 3 reversals in the fitting data");
+    }
+    let mean = y.iter().sum::<f64>() / n.max(1) as f64;
+    let (mut e_near, mut e_all) = (0.0, 0.0);
+    for (v, &m) in y.iter().zip(&near) {
+        let e = (v - mean) * (v - mean);
+        e_all += e;
+        if m {
+            e_near += e;
+        }
+    }
+    let time_share = near.iter().filter(|m| **m).count() as f64 / n.max(1) as f64;
+    let energy_share = if e_all > 0.0 { e_near / e_all } else { 0.0 };
+    let ratio = energy_share / time_share.max(1e-9);
+    let what = if effect == Effect::Backlash {
+        "play"
+    } else {
+        "play with one flank favoured"
+    };
+    Evidence {
+        pass: ratio >= 2.0,
+        text: format!(
+            "{:.0} % of the residual energy lies within ±30 ms of the {reversals} reversals, which take {:.0} % of the time ({ratio:.1}×), as {what} makes it",
+            100.0 * energy_share,
+            100.0 * time_share
+        ),
+        ..Evidence::default()
+    }
+    .with("energy_share_at_reversals", energy_share)
+    .with("time_share_at_reversals", time_share)
+    .with("concentration", ratio)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_stroke_level_counts_short_strokes_and_resets_on_a_long_one() {
+        // +3 mm, −3 mm, +3 mm, then +30 mm, at 10 mm/s in 1 ms samples.
+        let mut pos = vec![0.0];
+        let mut vel = vec![0.0];
+        for (len_mm, sign) in [(3.0, 1.0), (3.0, -1.0), (3.0, 1.0), (30.0, -1.0)] {
+            let steps = (len_mm / 0.01) as usize;
+            for _ in 0..steps {
+                let x = pos.last().copied().unwrap_or(0.0) + sign * 1e-5;
+                pos.push(x);
+                vel.push(sign * 0.01);
+            }
+        }
+        let lvl = stroke_level(&vel, &pos, mm_to_m(5.0));
+        let at = |mm: f64| lvl[(mm / 0.01) as usize];
+        assert_eq!(at(1.0), 0.0, "first stroke: no reversal yet");
+        assert!(at(4.0).abs() > 0.2, "second stroke: level 1");
+        assert!(at(7.0).abs() > at(4.0).abs(), "third stroke: level 2");
+        assert!(at(7.0) > 0.0 && at(4.0) < 0.0, "signed with the direction");
+        assert!(at(14.0).abs() > 0.0, "the long stroke starts at level 3");
+    }
+}

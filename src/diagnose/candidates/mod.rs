@@ -1,0 +1,478 @@
+//! "Which": each candidate effect gets a signature test (its evidence, [`Evidence`]) and a
+//! fit on top of the current base model, scored on held-out data.
+//!
+//! An effect counts as found only when both agree: its signature is in the residual (a grid,
+//! a period along the travel, a lag, a resonance, a drift, a friction term, a force no state
+//! explains) and adding it shrinks the held-out residual. Shrink alone let a delay or a
+//! compliance absorb any small mismatch; a signature alone says nothing about size.
+
+mod friction;
+mod special;
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use serde::Serialize;
+
+use super::DiagnoseError;
+use super::calibrate::{Calibration, MAX_RATIO_CHANGE};
+use super::effects::Effect;
+use super::engine::{Cand, Engine, Eval, Scores};
+use super::lm::{self, Param};
+
+/// Smallest held-out shrink (after the complexity penalty) that counts as an effect.
+pub const MIN_SHRINK: f64 = 0.10;
+/// A signature term must stand this many standard errors clear of zero.
+pub const MIN_T: f64 = 6.0;
+
+/// What supports (or rules out) an effect besides the shrink.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Evidence {
+    /// Whether the signature is there.
+    pub pass: bool,
+    /// The figures, in words (for the report and the GUI).
+    pub text: String,
+    /// The figures by name (unit in the key).
+    pub figures: BTreeMap<String, f64>,
+    /// Starting values for the fit, in the order of the effect's parameters.
+    #[serde(skip)]
+    pub hint: Vec<f64>,
+}
+
+impl Evidence {
+    /// No signature, and why.
+    pub fn absent(why: impl Into<String>) -> Evidence {
+        Evidence {
+            pass: false,
+            text: why.into(),
+            ..Evidence::default()
+        }
+    }
+
+    /// Adds a named figure.
+    pub fn with(mut self, key: &str, v: f64) -> Evidence {
+        self.figures.insert(key.to_owned(), v);
+        self
+    }
+}
+
+/// The measured signals the signature tests read, on the fitting part: velocity and
+/// acceleration from the measured position (smoothed over a few samples so the encoder grid
+/// does not dominate), and the base model's residuals.
+pub struct Signals {
+    /// Time of each sample, s.
+    pub t_s: Vec<f64>,
+    /// Measured position, m.
+    pub pos_m: Vec<f64>,
+    /// Measured velocity, m/s.
+    pub vel_mps: Vec<f64>,
+    /// Measured acceleration, m/s².
+    pub acc_mps2: Vec<f64>,
+    /// Commanded acceleration, m/s².
+    pub cmd_acc_mps2: Vec<f64>,
+    /// Position residual of the base model, m.
+    pub r_pos: Vec<f64>,
+    /// Force residual of the base model, N.
+    pub r_force: Option<Vec<f64>>,
+    /// Correlation length of the residual, samples.
+    pub corr_len: f64,
+}
+
+/// Centred difference of `x` over ±`h` samples, per `dt`.
+fn derivative(x: &[f64], h: usize, dt: f64) -> Vec<f64> {
+    let n = x.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(h), (i + h).min(n.saturating_sub(1)));
+            if b > a {
+                (x[b] - x[a]) / ((b - a) as f64 * dt)
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+impl Signals {
+    /// The signals of the engine's fitting part under base residual `ev`.
+    pub fn new(eng: &Engine, ev: &Eval) -> Signals {
+        let rec = eng.split.main;
+        let n = eng.split.n_fit;
+        let dt = rec.t3_s;
+        // About 5 ms either side: several encoder counts at creep speed, short against a
+        // reversal.
+        let h = ((0.005 / dt).round() as usize).max(1);
+        let pos = rec.pos_m[..n].to_vec();
+        let vel = derivative(&pos, h, dt);
+        let acc = derivative(&vel, h, dt);
+        let cmd_vel = derivative(&rec.cmd_m[..n], 1, dt);
+        Signals {
+            t_s: (0..n).map(|k| rec.t_s(k)).collect(),
+            cmd_acc_mps2: derivative(&cmd_vel, 1, dt),
+            pos_m: pos,
+            vel_mps: vel,
+            acc_mps2: acc,
+            r_pos: ev.fit_pos.clone(),
+            r_force: ev.fit_force.clone(),
+            corr_len: eng.corr_len,
+        }
+    }
+}
+
+/// An effect fitted on top of a base.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    /// Which effect.
+    pub effect: Effect,
+    /// Report key (unit in it) of each parameter.
+    pub keys: Vec<String>,
+    /// The parameters.
+    pub theta: Vec<f64>,
+    /// One standard deviation of each.
+    pub std: Vec<f64>,
+    /// The base with the effect.
+    pub cand: Cand,
+    /// Its residuals.
+    pub eval: Eval,
+    /// Parameters counted in the complexity penalty.
+    pub n_params: usize,
+    /// Further figures of the fit.
+    pub extra: BTreeMap<String, f64>,
+    /// A remark (why it is or is not counted).
+    pub note: String,
+    /// The signature test.
+    pub evidence: Evidence,
+    /// Whether the effect's parameters enter the joint re-fit (effects fitted by a detector
+    /// keep what it found).
+    pub refit: bool,
+    /// How the effect was added, to add it again to another base.
+    pub applied: Applied,
+    /// The calibration ratios of `cand` (fitted again alongside the effect, or the base's).
+    pub ratios: Vec<f64>,
+}
+
+/// How a fitted effect changes a model, so that it can be added to another base (the joint
+/// re-fit starts again from the nominal).
+#[derive(Debug, Clone)]
+pub enum Applied {
+    /// Through [`Effect::apply`] with these parameters.
+    Params(Effect, Vec<f64>),
+    /// A lead-error table (position mm, error µm).
+    LeadTable(Vec<(f64, f64)>),
+    /// A disturbance on the main record (and those found on a validation record).
+    Disturbance(super::replay::Disturbance, Vec<super::replay::Disturbance>),
+}
+
+impl Applied {
+    /// Adds the effect to `c`.
+    pub fn apply(&self, c: &mut Cand) {
+        match self {
+            Applied::Params(e, th) => e.apply(th, &mut c.model),
+            Applied::LeadTable(t) => {
+                let l = &mut c.model.axis.lead_error;
+                l.enabled = true;
+                l.table.clone_from(t);
+            }
+            Applied::Disturbance(d, v) => {
+                c.model.disturbance.push(d.clone());
+                c.dist_val.extend(v.iter().cloned());
+            }
+        }
+    }
+}
+
+/// What every candidate fit needs.
+pub struct Context<'c, 'a> {
+    /// The residual engine.
+    pub eng: &'c Engine<'a>,
+    /// The nominal model, before calibration.
+    pub nominal: &'c Cand,
+    /// The effects selected so far (the base is the nominal, calibrated, with these).
+    pub selected: &'c [Applied],
+    /// The model effects are added to.
+    pub base: &'c Cand,
+    /// Its residuals.
+    pub base_eval: &'c Eval,
+    /// The calibration (which parameters, and the lags).
+    pub cal: &'c Calibration,
+    /// The calibration ratios of the base (they move when an effect is fitted with them).
+    pub ratios: &'c [f64],
+    /// The measured signals.
+    pub sig: &'c Signals,
+}
+
+impl Context<'_, '_> {
+    /// Whether a calibration parameter sits at its ±8 % bound in the base.
+    pub fn at_bound(&self, p: super::calibrate::CalParam) -> bool {
+        self.cal
+            .ratios
+            .iter()
+            .zip(self.ratios)
+            .any(|((q, _), r)| *q == p && (r - 1.0).abs() > MAX_RATIO_CHANGE - 0.005)
+    }
+
+    /// The signature test of `effect` on the base's residual.
+    pub fn evidence(&self, effect: Effect) -> Evidence {
+        match effect {
+            Effect::CoulombFriction
+            | Effect::StribeckFriction
+            | Effect::ViscousFriction
+            | Effect::StrokeFriction
+            | Effect::ConstantForce => friction::evidence(self, effect),
+            Effect::Backlash | Effect::BacklashAsymmetry => {
+                friction::reversal_evidence(self, effect)
+            }
+            _ => special::evidence(self, effect),
+        }
+    }
+
+    /// The nominal, calibrated by `ratios`, with the selected effects: a base in which the
+    /// calibration can move again.
+    fn rebuilt(&self, ratios: &[f64]) -> Cand {
+        let mut c = self.nominal.clone();
+        for ((p, _), r) in self.cal.ratios.iter().zip(ratios) {
+            p.apply(&mut c.model.axis, *r);
+        }
+        for a in self.selected {
+            a.apply(&mut c);
+        }
+        c
+    }
+
+    /// Fits `effect` on the base by least squares over its parameters, from the evidence's
+    /// hint (and the effect's typical values), keeping the best of a few starts. When its
+    /// signature is there, the calibration ratios are fitted again alongside: a ratio may
+    /// have leant towards the missing effect (a velocity gain standing in for friction),
+    /// and the effect alone cannot undo that.
+    pub fn fit_lm(&self, effect: Effect, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError> {
+        let defs = effect.params();
+        let n_e = defs.len();
+        let mut params: Vec<Param> = defs
+            .iter()
+            .map(|d| Param {
+                lo: d.lo,
+                hi: d.hi,
+                scale: d.init.abs().max(1e-9),
+            })
+            .collect();
+        let joint = ev.pass;
+        let ratios0: Vec<f64> = self.ratios.to_vec();
+        // The effect's own calibration parameter stays put: a Coulomb ratio and an added
+        // Coulomb force (or viscous) are one quantity, and fitting both is degenerate.
+        let owned = match effect {
+            Effect::CoulombFriction => Some(super::calibrate::CalParam::Coulomb),
+            Effect::ViscousFriction => Some(super::calibrate::CalParam::Viscous),
+            _ => None,
+        };
+        let free: Vec<usize> = (0..ratios0.len())
+            .filter(|&i| joint && Some(self.cal.ratios[i].0) != owned)
+            .collect();
+        params.extend(free.iter().map(|_| Param {
+            lo: 1.0 - MAX_RATIO_CHANGE,
+            hi: 1.0 + MAX_RATIO_CHANGE,
+            scale: 1.0,
+        }));
+        let ratios_of = |th: &[f64]| -> Vec<f64> {
+            let mut r = ratios0.clone();
+            for (j, &i) in free.iter().enumerate() {
+                r[i] = th[n_e + j];
+            }
+            r
+        };
+        let build = |th: &[f64]| -> Cand {
+            if joint {
+                with_effect(&self.rebuilt(&ratios_of(th)), effect, &th[..n_e])
+            } else {
+                with_effect(self.base, effect, th)
+            }
+        };
+        let rows = |th: &[f64]| Ok(Some(self.eng.lm_rows(&self.eng.sim_fit(&build(th))?)));
+        let mut best: Option<lm::LmFit> = None;
+        for mut start in starts(effect, &ev.hint) {
+            start.extend(free.iter().map(|&i| ratios0[i]));
+            let f = lm::fit(&start, &params, &rows, 0.03, 6)?;
+            if best.as_ref().is_none_or(|b| f.cost < b.cost) {
+                best = Some(f);
+            }
+        }
+        let Some(f) = best else { return Ok(None) };
+        let std = lm::std_devs(
+            &f,
+            1.0 / (self.sig.corr_len / self.eng.stride as f64).max(1.0),
+        );
+        let cand = build(&f.theta);
+        let eval = self.eng.evaluate(&cand)?;
+        let mut extra = BTreeMap::new();
+        let ratios = ratios_of(&f.theta);
+        if joint {
+            for ((p, _), r) in self.cal.ratios.iter().zip(&ratios) {
+                extra.insert(format!("calibration_{}_ratio", p.name()), *r);
+            }
+        }
+        Ok(Some(Fitted {
+            effect,
+            keys: defs.iter().map(|d| d.key.to_owned()).collect(),
+            applied: Applied::Params(effect, f.theta[..n_e].to_vec()),
+            theta: f.theta[..n_e].to_vec(),
+            std: std[..n_e].to_vec(),
+            cand,
+            eval,
+            n_params: defs.len(),
+            extra,
+            note: String::new(),
+            evidence: ev,
+            refit: true,
+            ratios,
+        }))
+    }
+
+    /// Evidence and fit of one effect; None when it cannot be fitted on this record.
+    pub fn fit(&self, effect: Effect) -> Result<Option<Fitted>, DiagnoseError> {
+        let ev = self.evidence(effect);
+        match effect {
+            Effect::Quantization
+            | Effect::LeadError
+            | Effect::ExternalDisturbance
+            | Effect::BeamSag => special::fit(self, effect, ev),
+            _ => self.fit_lm(effect, ev),
+        }
+    }
+}
+
+/// `base` with `effect` at parameters `theta`.
+pub fn with_effect(base: &Cand, e: Effect, theta: &[f64]) -> Cand {
+    let mut c = base.clone();
+    e.apply(theta, &mut c.model);
+    c
+}
+
+/// Starting points: the evidence's hint first, then a small grid over the parameters the
+/// residual depends on nonlinearly.
+fn starts(effect: Effect, hint: &[f64]) -> Vec<Vec<f64>> {
+    let defs = effect.params();
+    let init: Vec<f64> = defs.iter().map(|d| d.init).collect();
+    let clamp = |v: Vec<f64>| -> Vec<f64> {
+        v.iter()
+            .zip(defs)
+            .map(|(x, d)| x.clamp(d.lo, d.hi))
+            .collect()
+    };
+    let mut out = Vec::new();
+    if hint.len() == defs.len() {
+        out.push(clamp(hint.to_vec()));
+    }
+    let vary = |i: usize, vals: &[f64]| -> Vec<Vec<f64>> {
+        vals.iter()
+            .map(|&v| {
+                let mut s = init.clone();
+                s[i] = v;
+                s
+            })
+            .collect()
+    };
+    let grid = match effect {
+        Effect::StribeckFriction => vary(1, &[0.5, 2.0, 8.0]),
+        Effect::StrokeFriction => vary(1, &[5.0, 20.0]),
+        Effect::Compliance => vary(0, &[10.0, 50.0, 250.0]),
+        Effect::ThermalGrowth => vary(1, &[60.0, 600.0]),
+        Effect::Backlash => vary(0, &[3.0, 10.0, 30.0]),
+        Effect::BacklashAsymmetry => vec![vec![5.0, -30.0], vec![5.0, 30.0], vec![20.0, 30.0]],
+        _ => vec![init],
+    };
+    // With a hint, one more start is enough; without, the whole grid.
+    if out.is_empty() {
+        grid.into_iter().map(clamp).collect()
+    } else {
+        out.extend(grid.into_iter().take(1).map(clamp));
+        out
+    }
+}
+
+/// The ranking of candidates on one base.
+pub struct Round {
+    /// Each fitted candidate with its scores, best first.
+    pub ranked: Vec<(Fitted, Scores)>,
+}
+
+/// Fits every effect of `effects` on `ctx.base`, two at a time (two cores), and ranks them:
+/// significant ones first (both signature and shrink), then by score.
+pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError> {
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<(usize, Fitted)>> = Mutex::new(Vec::new());
+    let first_err: Mutex<Option<DiagnoseError>> = Mutex::new(None);
+    std::thread::scope(|s| {
+        for _ in 0..2 {
+            s.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(&e) = effects.get(i) else { break };
+                    match ctx.fit(e) {
+                        Ok(Some(f)) => {
+                            if let Ok(mut r) = results.lock() {
+                                r.push((i, f));
+                            }
+                        }
+                        Ok(None) => {}
+                        Err(err) => {
+                            if let Ok(mut fe) = first_err.lock() {
+                                fe.get_or_insert(err);
+                            }
+                            next.store(usize::MAX / 2, Ordering::Relaxed);
+                            break;
+                        }
+                    }
+                }
+            });
+        }
+    });
+    if let Some(e) = first_err.into_inner().ok().flatten() {
+        return Err(e);
+    }
+    let mut r = results.into_inner().unwrap_or_default();
+    r.sort_by_key(|x| x.0);
+    let mut ranked: Vec<(Fitted, Scores)> = r
+        .into_iter()
+        .map(|(_, f)| {
+            let s = score(ctx, &f);
+            (f, s)
+        })
+        .collect();
+    ranked.sort_by(|a, b| {
+        b.1.significant
+            .cmp(&a.1.significant)
+            .then(b.1.score.total_cmp(&a.1.score))
+    });
+    Ok(Round { ranked })
+}
+
+/// Held-out scores of a fitted candidate and whether it counts as found.
+fn score(ctx: &Context, f: &Fitted) -> Scores {
+    let state_dependent = f.effect != Effect::ExternalDisturbance;
+    let mut s = ctx
+        .eng
+        .scores(ctx.base_eval, &f.eval, f.n_params, state_dependent);
+    let fit_b = ctx
+        .eng
+        .j(&ctx.base_eval.fit_pos, ctx.base_eval.fit_force.as_deref());
+    let fit_a = ctx.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
+    s.significant = if f.effect == Effect::Quantization {
+        // Rounding cannot be predicted sample by sample, so modelling the grid does not
+        // shrink the residual; the grid is proven by the positions themselves.
+        f.evidence.pass
+    } else {
+        f.evidence.pass && s.score >= MIN_SHRINK && fit_a < fit_b
+    };
+    if f.effect == Effect::Quantization && s.significant {
+        s.score = s.score.max(
+            MIN_SHRINK
+                + f.evidence
+                    .figures
+                    .get("on_grid_share")
+                    .copied()
+                    .unwrap_or(0.0)
+                    * 0.5,
+        );
+    }
+    s
+}

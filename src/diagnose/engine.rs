@@ -1,0 +1,419 @@
+//! The common ground of the diagnosis: which part of the record fits and which is held out,
+//! a candidate model and its residuals on both parts, the normalised residual the solver
+//! sees, and the held-out scores every candidate is ranked by.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use nalgebra::DVector;
+
+use super::replay::{Disturbance, Model, Record, SimOut, simulate};
+use super::{DiagnoseError, Progress};
+
+/// Residual rows handed to the least-squares solver at most (the record is strided).
+const MAX_LM_ROWS: usize = 60_000;
+/// The solver's iterations replay at most this many samples of the fitting part (its
+/// beginning); a fitted candidate is then scored on all of it. This bounds the cost of a
+/// long record: the iterations are most of the work.
+pub const MAX_LM_SAMPLES: usize = 200_000;
+
+/// Where the fitting part ends and where the held-out part comes from.
+pub struct Split<'a> {
+    /// The record fitted on (all of it when a validation record is given).
+    pub main: &'a Record,
+    /// Samples of `main` the fits use.
+    pub n_fit: usize,
+    /// A separate held-out record, or None to hold out the end of `main`.
+    pub validate: Option<&'a Record>,
+}
+
+impl<'a> Split<'a> {
+    /// Checks the records and splits them.
+    pub fn new(
+        main: &'a Record,
+        validate: Option<&'a Record>,
+        holdout: f64,
+    ) -> Result<Split<'a>, DiagnoseError> {
+        let n_fit = match validate {
+            Some(v) => {
+                if v.axis != main.axis {
+                    return Err(DiagnoseError::Input(format!(
+                        "the validation record is axis '{}', the fitting record '{}'",
+                        v.axis, main.axis
+                    )));
+                }
+                if v.len() < 10 {
+                    return Err(DiagnoseError::Input(
+                        "the validation record has fewer than 10 samples".into(),
+                    ));
+                }
+                if v.force_n.is_some() != main.force_n.is_some() {
+                    return Err(DiagnoseError::Input(
+                        "one record has a force column and the other has not; map both the same way".into(),
+                    ));
+                }
+                main.len()
+            }
+            None => ((1.0 - holdout) * main.len() as f64).round() as usize,
+        };
+        if n_fit < 10 || (validate.is_none() && main.len() - n_fit < 10) {
+            return Err(DiagnoseError::Input(format!(
+                "{} samples are too few to split into fitting and held-out parts",
+                main.len()
+            )));
+        }
+        Ok(Split {
+            main,
+            n_fit,
+            validate,
+        })
+    }
+}
+
+/// A candidate: the model (its disturbances are those of the main record) plus the
+/// disturbances found on a separate validation record.
+#[derive(Debug, Clone)]
+pub struct Cand {
+    /// The model, with the main record's disturbances.
+    pub model: Model,
+    /// Disturbances of the validation record.
+    pub dist_val: Vec<Disturbance>,
+}
+
+/// Residuals (measured − simulated) of one candidate, in m and N.
+#[derive(Debug, Clone, Default)]
+pub struct Eval {
+    /// Position residual on the fitting part.
+    pub fit_pos: Vec<f64>,
+    /// Force residual on the fitting part.
+    pub fit_force: Option<Vec<f64>>,
+    /// Position residual on the held-out part.
+    pub hold_pos: Vec<f64>,
+    /// Force residual on the held-out part.
+    pub hold_force: Option<Vec<f64>>,
+}
+
+/// How a candidate changes the residual.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Scores {
+    /// Position residual RMS on the fitting part before, m.
+    pub fit_pos_before: f64,
+    /// … and after.
+    pub fit_pos_after: f64,
+    /// Held-out position residual RMS before, m.
+    pub hold_pos_before: f64,
+    /// … and after.
+    pub hold_pos_after: f64,
+    /// Held-out shrink of the combined residual, 0..1.
+    pub shrink: f64,
+    /// Held-out shrink of the position residual.
+    pub shrink_pos: f64,
+    /// Held-out shrink of the force residual.
+    pub shrink_force: Option<f64>,
+    /// Shrink minus the complexity penalty: the ranking key.
+    pub score: f64,
+    /// Whether the effect counts as found.
+    pub significant: bool,
+}
+
+/// Complexity penalty per fitted parameter, in units of held-out shrink.
+pub const PENALTY_PER_PARAM: f64 = 0.02;
+
+pub(crate) fn rms(x: &[f64]) -> f64 {
+    if x.is_empty() {
+        return 0.0;
+    }
+    (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt()
+}
+
+pub(crate) fn peak(x: &[f64]) -> f64 {
+    x.iter().fold(0.0f64, |m, v| m.max(v.abs()))
+}
+
+fn resid(meas: &[f64], sim: &[f64]) -> Vec<f64> {
+    meas.iter().zip(sim).map(|(m, s)| m - s).collect()
+}
+
+/// The residuals and scores of candidates on one split.
+pub struct Engine<'a> {
+    /// The records.
+    pub split: Split<'a>,
+    progress: &'a Progress<'a>,
+    /// Whether the records have force.
+    pub has_force: bool,
+    /// Normalisation of the position residual, m.
+    pub sig_pos: f64,
+    /// Normalisation of the force residual, N.
+    pub sig_force: f64,
+    /// Stride of the solver's rows.
+    pub stride: usize,
+    /// Samples over which the baseline's residual stays correlated.
+    pub corr_len: f64,
+    /// Held-out samples the state-dependent candidates are scored on: blocks whose baseline
+    /// residual is far beyond anything in the fitting data (a disturbance the fitting data
+    /// never showed) are left out, so that they do not drown the score of an effect that is
+    /// present in both. The overall before/after figures keep them.
+    pub hold_mask: Vec<bool>,
+    sims: AtomicUsize,
+    /// Replays expected in all (for the progress bar).
+    pub sims_expected: AtomicUsize,
+}
+
+impl<'a> Engine<'a> {
+    /// An engine whose normalisation comes from the residual of `base`.
+    pub fn new(
+        split: Split<'a>,
+        base: &Cand,
+        progress: &'a Progress<'a>,
+    ) -> Result<(Engine<'a>, Eval), DiagnoseError> {
+        let has_force = split.main.force_n.is_some();
+        let mut e = Engine {
+            split,
+            progress,
+            has_force,
+            sig_pos: 1.0,
+            sig_force: 1.0,
+            stride: 1,
+            corr_len: 1.0,
+            hold_mask: vec![],
+            sims: AtomicUsize::new(0),
+            sims_expected: AtomicUsize::new(200),
+        };
+        e.stride = e.n_lm().div_ceil(MAX_LM_ROWS).max(1);
+        let ev = e.evaluate(base)?;
+        for v in [&ev.fit_pos, &ev.hold_pos] {
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(DiagnoseError::Input(
+                    "the model's position diverged during the replay; check the preset's servo gains against the record".into(),
+                ));
+            }
+        }
+        e.set_scale(&ev);
+        Ok((e, ev))
+    }
+
+    /// Takes the normalisation (and the anomaly mask) from the residual `ev`.
+    pub fn set_scale(&mut self, ev: &Eval) {
+        self.sig_pos = rms(&ev.fit_pos).max(1e-12);
+        self.sig_force = ev.fit_force.as_deref().map_or(1.0, rms).max(1e-9);
+        self.corr_len = corr_length(&ev.fit_pos);
+        self.hold_mask = self.anomaly_mask(ev);
+    }
+
+    /// Reports progress and honours a cancel.
+    pub fn tick(&self, what: &str) -> Result<(), DiagnoseError> {
+        self.progress.check()?;
+        let d = self.sims.fetch_add(1, Ordering::Relaxed) + 1;
+        let exp = self.sims_expected.load(Ordering::Relaxed).max(d + 1);
+        (self.progress.report)((d as f64 / exp as f64).min(0.99), what);
+        Ok(())
+    }
+
+    /// Samples the solver's iterations replay.
+    pub fn n_lm(&self) -> usize {
+        self.split.n_fit.min(MAX_LM_SAMPLES)
+    }
+
+    /// Simulates the part of the fitting data the solver uses.
+    pub fn sim_fit(&self, c: &Cand) -> Result<SimOut, DiagnoseError> {
+        self.tick("fitting")?;
+        Ok(simulate(&c.model, self.split.main, self.n_lm()))
+    }
+
+    /// Simulates both parts and returns the residuals.
+    pub fn evaluate(&self, c: &Cand) -> Result<Eval, DiagnoseError> {
+        self.tick("scoring")?;
+        let main = self.split.main;
+        let nf = self.split.n_fit;
+        let n_main = if self.split.validate.is_some() {
+            nf
+        } else {
+            main.len()
+        };
+        let s = simulate(&c.model, main, n_main);
+        let pos = resid(&main.pos_m[..n_main], &s.pos_m);
+        let force = main
+            .force_n
+            .as_ref()
+            .map(|f| resid(&f[..n_main], &s.force_n));
+        match self.split.validate {
+            None => Ok(Eval {
+                fit_pos: pos[..nf].to_vec(),
+                fit_force: force.as_ref().map(|f| f[..nf].to_vec()),
+                hold_pos: pos[nf..].to_vec(),
+                hold_force: force.as_ref().map(|f| f[nf..].to_vec()),
+            }),
+            Some(v) => {
+                let mut mv = c.model.clone();
+                mv.disturbance.clone_from(&c.dist_val);
+                let sv = simulate(&mv, v, v.len());
+                Ok(Eval {
+                    fit_pos: pos,
+                    fit_force: force,
+                    hold_pos: resid(&v.pos_m, &sv.pos_m),
+                    hold_force: v.force_n.as_ref().map(|f| resid(f, &sv.force_n)),
+                })
+            }
+        }
+    }
+
+    fn anomaly_mask(&self, ev: &Eval) -> Vec<bool> {
+        let t3 = self.split.main.t3_s;
+        let w = ((0.1 / t3).round() as usize).max(1);
+        let cf = self.combined(&ev.fit_pos, ev.fit_force.as_deref());
+        let ch = self.combined(&ev.hold_pos, ev.hold_force.as_deref());
+        let mut fb: Vec<f64> = cf.chunks(w).map(rms).collect();
+        fb.sort_by(f64::total_cmp);
+        let p95 = fb
+            .get(fb.len() * 95 / 100)
+            .copied()
+            .unwrap_or(f64::INFINITY);
+        let thr = 3.0 * p95;
+        let mut mask = Vec::with_capacity(ch.len());
+        for c in ch.chunks(w) {
+            mask.extend(std::iter::repeat_n(rms(c) <= thr, c.len()));
+        }
+        // Never score on nothing: if most of the held-out part is anomalous, keep it all.
+        if mask.iter().filter(|k| **k).count() * 5 < mask.len() {
+            mask.iter_mut().for_each(|k| *k = true);
+        }
+        mask
+    }
+
+    /// Samples of `v` where the held-out mask is set.
+    fn masked(&self, v: &[f64]) -> Vec<f64> {
+        v.iter()
+            .zip(&self.hold_mask)
+            .filter(|(_, k)| **k)
+            .map(|(x, _)| *x)
+            .collect()
+    }
+
+    /// Combined normalised RMS of position and force residuals.
+    pub fn j(&self, pos: &[f64], force: Option<&[f64]>) -> f64 {
+        let p = rms(pos) / self.sig_pos;
+        match force {
+            Some(f) if self.has_force => {
+                let q = rms(f) / self.sig_force;
+                (0.5 * (p * p + q * q)).sqrt()
+            }
+            _ => p,
+        }
+    }
+
+    /// Per-sample combined residual magnitude (for locating events).
+    pub fn combined(&self, pos: &[f64], force: Option<&[f64]>) -> Vec<f64> {
+        match force {
+            Some(f) if self.has_force => pos
+                .iter()
+                .zip(f)
+                .map(|(p, q)| {
+                    let a = p / self.sig_pos;
+                    let b = q / self.sig_force;
+                    (0.5 * (a * a + b * b)).sqrt()
+                })
+                .collect(),
+            _ => pos.iter().map(|p| (p / self.sig_pos).abs()).collect(),
+        }
+    }
+
+    /// The normalised fitting residual of a simulation, strided: the solver's rows.
+    pub fn lm_rows(&self, s: &SimOut) -> DVector<f64> {
+        self.lm_rows_shifted(s, 0.0, 0.0)
+    }
+
+    /// [`Engine::lm_rows`] with the simulated position and force read `pos_shift` and
+    /// `force_shift` samples later (a channel logged off its instant).
+    pub fn lm_rows_shifted(&self, s: &SimOut, pos_shift: f64, force_shift: f64) -> DVector<f64> {
+        let main = self.split.main;
+        let st = self.stride;
+        let n = s.pos_m.len();
+        let mut v = Vec::with_capacity(2 * n / st + 2);
+        for k in (0..n).step_by(st) {
+            v.push((main.pos_m[k] - at(&s.pos_m, k as f64 + pos_shift)) / self.sig_pos);
+        }
+        if let Some(f) = &main.force_n {
+            for k in (0..s.force_n.len()).step_by(st) {
+                v.push((f[k] - at(&s.force_n, k as f64 + force_shift)) / self.sig_force);
+            }
+        }
+        let len = v.len() as f64;
+        DVector::from_vec(v) / len.sqrt()
+    }
+
+    /// How candidate `after` changes the held-out residual of `base`. `mask` leaves out the
+    /// anomalous held-out blocks (for effects that depend on the axis's state).
+    pub fn scores(&self, base: &Eval, after: &Eval, n_params: usize, mask: bool) -> Scores {
+        let hj = |e: &Eval| {
+            if mask {
+                let f = e.hold_force.as_deref().map(|f| self.masked(f));
+                self.j(&self.masked(&e.hold_pos), f.as_deref())
+            } else {
+                self.j(&e.hold_pos, e.hold_force.as_deref())
+            }
+        };
+        let jb = hj(base);
+        let ja = hj(after);
+        let shrink = if jb > 0.0 { 1.0 - ja / jb } else { 0.0 };
+        let (hb, ha) = (rms(&base.hold_pos), rms(&after.hold_pos));
+        let shrink_force = match (&base.hold_force, &after.hold_force) {
+            (Some(b), Some(a)) if rms(b) > 0.0 => Some(1.0 - rms(a) / rms(b)),
+            _ => None,
+        };
+        Scores {
+            fit_pos_before: rms(&base.fit_pos),
+            fit_pos_after: rms(&after.fit_pos),
+            hold_pos_before: hb,
+            hold_pos_after: ha,
+            shrink,
+            shrink_pos: if hb > 0.0 { 1.0 - ha / hb } else { 0.0 },
+            shrink_force,
+            score: shrink - PENALTY_PER_PARAM * n_params as f64,
+            significant: false,
+        }
+    }
+}
+
+/// `v` at fractional index `x` (linear interpolation, ends held).
+pub fn at(v: &[f64], x: f64) -> f64 {
+    let last = v.len().saturating_sub(1);
+    if v.is_empty() {
+        return 0.0;
+    }
+    if x <= 0.0 {
+        return v[0];
+    }
+    if x >= last as f64 {
+        return v[last];
+    }
+    let i = x.floor() as usize;
+    let f = x - i as f64;
+    v[i] + (v[i + 1] - v[i]) * f
+}
+
+/// Samples over which the residual stays correlated (first lag where the autocorrelation
+/// falls below 1/e), at most 10,000.
+pub fn corr_length(r: &[f64]) -> f64 {
+    let n = r.len();
+    if n < 4 {
+        return 1.0;
+    }
+    let mean = r.iter().sum::<f64>() / n as f64;
+    let var: f64 = r.iter().map(|x| (x - mean).powi(2)).sum();
+    if var <= 0.0 {
+        return 1.0;
+    }
+    let mut lag = 1;
+    while lag < n / 2 && lag < 10_000 {
+        let step = ((n - lag) / 20_000).max(1);
+        let c: f64 = (0..n - lag)
+            .step_by(step)
+            .map(|i| (r[i] - mean) * (r[i + lag] - mean))
+            .sum::<f64>()
+            * step as f64;
+        if c / var < (-1.0f64).exp() {
+            break;
+        }
+        lag = (lag as f64 * 1.5).ceil() as usize;
+    }
+    lag as f64
+}

@@ -1,0 +1,228 @@
+//! Forward selection: rank every candidate on the calibrated model, add the best one that
+//! is found (signature and held-out shrink), then re-fit and re-rank the rest on top of it,
+//! and so on while a further effect still shrinks the held-out residual. At the end the
+//! selected effects are re-fitted together with the calibration, so that an effect found
+//! first does not keep what the second one explains better.
+
+use super::DiagnoseError;
+use super::calibrate::{CalParam, Calibration};
+use super::candidates::{self, Applied, Context, Fitted, MIN_SHRINK, Signals};
+use super::effects::Effect;
+use super::engine::{Cand, Engine, Eval, Scores};
+use super::lm::{self, Param};
+use crate::diagnose::calibrate::MAX_RATIO_CHANGE;
+
+/// What the selection found.
+pub struct Outcome {
+    /// The first round's ranking (every candidate on the calibrated model).
+    pub ranking: Vec<(Fitted, Scores)>,
+    /// The effects added, in order, each with its scores at the time it was added.
+    pub selected: Vec<(Fitted, Scores)>,
+    /// The model with every selected effect (after the joint re-fit).
+    pub final_cand: Cand,
+    /// Its residuals.
+    pub final_eval: Eval,
+    /// The calibration ratios after the joint re-fit.
+    pub final_ratios: Vec<(CalParam, f64)>,
+    /// The selected effects' parameters after the joint re-fit (same order as `selected`).
+    pub final_params: Vec<Vec<f64>>,
+}
+
+/// Runs the selection from the calibrated model `calibrated` (residual `cal_eval`).
+pub fn run(
+    eng: &Engine,
+    cal: &Calibration,
+    nominal: &Cand,
+    calibrated: &Cand,
+    cal_eval: &Eval,
+    effects: &[Effect],
+    max_effects: usize,
+) -> Result<Outcome, DiagnoseError> {
+    eng.sims_expected.store(
+        40 * effects.len() * max_effects.max(1),
+        std::sync::atomic::Ordering::Relaxed,
+    );
+    let sig = Signals::new(eng, cal_eval);
+    let ratios0: Vec<f64> = cal.ratios.iter().map(|(_, r)| *r).collect();
+    let ctx = Context {
+        eng,
+        nominal,
+        selected: &[],
+        base: calibrated,
+        base_eval: cal_eval,
+        cal,
+        ratios: &ratios0,
+        sig: &sig,
+    };
+    let ranking = candidates::fit_all(&ctx, effects)?.ranked;
+    let mut selected: Vec<(Fitted, Scores)> = Vec::new();
+    let mut base = calibrated.clone();
+    let mut base_eval = cal_eval.clone();
+    if let Some((f, s)) = ranking.first().filter(|(_, s)| s.significant) {
+        base = f.cand.clone();
+        base_eval = f.eval.clone();
+        selected.push((f.clone(), *s));
+    }
+    while !selected.is_empty() && selected.len() < max_effects {
+        let rest: Vec<Effect> = effects
+            .iter()
+            .copied()
+            .filter(|e| !selected.iter().any(|(f, _)| f.effect == *e))
+            .collect();
+        let sig = Signals::new(eng, &base_eval);
+        let applied: Vec<Applied> = selected.iter().map(|(f, _)| f.applied.clone()).collect();
+        let ratios = selected
+            .last()
+            .map_or(ratios0.clone(), |(f, _)| f.ratios.clone());
+        let ctx = Context {
+            eng,
+            nominal,
+            selected: &applied,
+            base: &base,
+            base_eval: &base_eval,
+            cal,
+            ratios: &ratios,
+            sig: &sig,
+        };
+        let round = candidates::fit_all(&ctx, &rest)?.ranked;
+        let Some((f, s)) = round.into_iter().next().filter(|(_, s)| s.significant) else {
+            break;
+        };
+        base = f.cand.clone();
+        base_eval = f.eval.clone();
+        selected.push((f, s));
+    }
+    let j = joint_refit(eng, cal, nominal, &selected, base, base_eval)?;
+    Ok(Outcome {
+        ranking,
+        selected,
+        final_cand: j.cand,
+        final_eval: j.eval,
+        final_ratios: j.ratios,
+        final_params: j.params,
+    })
+}
+
+/// The selected effects' parameters and the calibration ratios, fitted together; kept only
+/// if the held-out residual does not grow.
+/// The jointly re-fitted model.
+struct Joint {
+    cand: Cand,
+    eval: Eval,
+    ratios: Vec<(CalParam, f64)>,
+    params: Vec<Vec<f64>>,
+}
+
+fn joint_refit(
+    eng: &Engine,
+    cal: &Calibration,
+    nominal: &Cand,
+    selected: &[(Fitted, Scores)],
+    base: Cand,
+    base_eval: Eval,
+) -> Result<Joint, DiagnoseError> {
+    let unchanged = |base: Cand, eval: Eval| Joint {
+        cand: base,
+        eval,
+        ratios: cal.ratios.clone(),
+        params: selected.iter().map(|(f, _)| f.theta.clone()).collect(),
+    };
+    let refit: Vec<&Fitted> = selected
+        .iter()
+        .map(|(f, _)| f)
+        .filter(|f| f.refit)
+        .collect();
+    if refit.is_empty() {
+        return Ok(unchanged(base, base_eval));
+    }
+    let ps: Vec<CalParam> = cal.ratios.iter().map(|(p, _)| *p).collect();
+    // A selected friction effect owns its calibration ratio (the two are one quantity).
+    let owned = |p: CalParam| {
+        selected.iter().any(|(f, _)| {
+            f.refit
+                && matches!(
+                    (f.effect, p),
+                    (Effect::CoulombFriction, CalParam::Coulomb)
+                        | (Effect::ViscousFriction, CalParam::Viscous)
+                )
+        })
+    };
+    let last_ratios = selected.last().map_or_else(
+        || cal.ratios.iter().map(|(_, r)| *r).collect(),
+        |(f, _)| f.ratios.clone(),
+    );
+    let mut params: Vec<Param> = ps
+        .iter()
+        .zip(&last_ratios)
+        .map(|(p, r)| {
+            if owned(*p) {
+                Param {
+                    lo: *r,
+                    hi: *r,
+                    scale: 1.0,
+                }
+            } else {
+                Param {
+                    lo: 1.0 - MAX_RATIO_CHANGE,
+                    hi: 1.0 + MAX_RATIO_CHANGE,
+                    scale: 1.0,
+                }
+            }
+        })
+        .collect();
+    let mut start: Vec<f64> = last_ratios.clone();
+    for f in &refit {
+        for (d, th) in f.effect.params().iter().zip(&f.theta) {
+            params.push(Param {
+                lo: d.lo,
+                hi: d.hi,
+                scale: th.abs().max(d.init.abs()).max(1e-9),
+            });
+            start.push(*th);
+        }
+    }
+    let build = |th: &[f64]| -> Cand {
+        let mut c = nominal.clone();
+        for (p, r) in ps.iter().zip(th) {
+            p.apply(&mut c.model.axis, *r);
+        }
+        let mut at = ps.len();
+        for (f, _) in selected {
+            if f.refit {
+                let n = f.effect.params().len();
+                Applied::Params(f.effect, th[at..at + n].to_vec()).apply(&mut c);
+                at += n;
+            } else {
+                f.applied.apply(&mut c);
+            }
+        }
+        c
+    };
+    let rows = |th: &[f64]| Ok(Some(eng.lm_rows(&eng.sim_fit(&build(th))?)));
+    let fit = lm::fit(&start, &params, &rows, 0.03, 4)?;
+    let cand = build(&fit.theta);
+    let eval = eng.evaluate(&cand)?;
+    let hold = |e: &Eval| eng.j(&e.hold_pos, e.hold_force.as_deref());
+    if hold(&eval) > hold(&base_eval) * (1.0 + 0.2 * MIN_SHRINK) {
+        return Ok(unchanged(base, base_eval));
+    }
+    let mut at = ps.len();
+    let params = selected
+        .iter()
+        .map(|(f, _)| {
+            if f.refit {
+                let n = f.effect.params().len();
+                at += n;
+                fit.theta[at - n..at].to_vec()
+            } else {
+                f.theta.clone()
+            }
+        })
+        .collect();
+    Ok(Joint {
+        cand,
+        eval,
+        ratios: ps.iter().copied().zip(fit.theta.iter().copied()).collect(),
+        params,
+    })
+}

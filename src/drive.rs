@@ -1,0 +1,416 @@
+//! One feed axis's T3 step: servo-stage compensations → amplifier → mechanics.
+//!
+//! [`AxisLoop::step`] is the only place this step is written. The machine calls it for every
+//! axis every T3; the diagnosis replays measured commands through it; the stability check
+//! linearises it ([`closed_loop_matrix`]). A change to the order, the feedback or a sensor
+//! therefore reaches all three at once.
+//!
+//! The amplifier's acceleration feed-forward takes one acceleration per T2 segment of the
+//! raw command ([`SegmentAcc`]); the machine and the replay both feed it from the same type.
+
+use nalgebra::DMatrix;
+
+use crate::comp::{ServoComp, ServoCompCtx, ServoCompOut};
+use crate::plant::{AxisPlant, MechState, PlantOut, Sensor, Start};
+use crate::preset::{AxisParams, Feedback};
+use crate::servo::{Servo, ServoInput, ServoOutput};
+
+/// What one axis's loop reads from the NC in one T3 period.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LoopInput {
+    /// Time at the start of the period, s.
+    pub t_s: f64,
+    /// The program's command before machine-error corrections, m; the feed-forwards follow it.
+    pub cmd_raw_m: f64,
+    /// The command after the NC's position compensations, m.
+    pub cmd_nc_m: f64,
+    /// Commanded acceleration of the current T2 segment, m/s².
+    pub acc_cmd_mps2: f64,
+    /// External force on the table, N (a disturbance the diagnosis fits; 0 on the machine).
+    pub ext_force_n: f64,
+}
+
+/// One trace row of an axis: the plant as the sensors saw it at the start of the period, and
+/// what the amplifier did during it.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Sample {
+    /// Plant outputs at the start of the period; `friction_n` is the friction over it.
+    pub plant: PlantOut,
+    /// The program's command, m.
+    pub cmd_raw_m: f64,
+    /// The command after the NC's position compensations, m.
+    pub cmd_nc_m: f64,
+    /// The command the position loop saw (after every compensation), m.
+    pub cmd_m: f64,
+    /// The amplifier's output.
+    pub servo: ServoOutput,
+    /// What the servo-stage compensations added.
+    pub servo_add: ServoCompOut,
+}
+
+/// One axis: its amplifier, its mechanics and the servo-stage compensations acting on it.
+pub struct AxisLoop {
+    servo: Servo,
+    plant: AxisPlant,
+    comps: Vec<Box<dyn ServoComp>>,
+    t3_s: f64,
+    /// Load-side force per motor torque, 2π/lead.
+    f_per_t: f64,
+    prev_cmd_nc_m: f64,
+    sample: Sample,
+}
+
+impl AxisLoop {
+    /// An axis at rest at `start`, its command at `cmd_raw_m` (raw) and `cmd_nc_m`
+    /// (compensated), with the servo-stage compensations `comps`.
+    pub fn new(
+        a: &AxisParams,
+        t3_s: f64,
+        start: Start,
+        cmd_raw_m: f64,
+        cmd_nc_m: f64,
+        comps: Vec<Box<dyn ServoComp>>,
+    ) -> AxisLoop {
+        let plant = AxisPlant::new(a, t3_s, start);
+        let servo = Servo::new(a, t3_s, cmd_raw_m, plant.out().motor_enc_m);
+        let mut l = AxisLoop {
+            servo,
+            plant,
+            comps,
+            t3_s,
+            f_per_t: a.drive.force_per_torque(),
+            prev_cmd_nc_m: cmd_nc_m,
+            sample: Sample::default(),
+        };
+        l.sample = Sample {
+            plant: *l.plant.out(),
+            cmd_raw_m,
+            cmd_nc_m,
+            cmd_m: cmd_nc_m,
+            servo: ServoOutput::default(),
+            servo_add: ServoCompOut::default(),
+        };
+        l
+    }
+
+    /// Puts the axis at rest at `start` again (power-up placement), keeping its
+    /// compensations.
+    pub fn restart(&mut self, a: &AxisParams, start: Start, cmd_raw_m: f64, cmd_nc_m: f64) {
+        let comps = std::mem::take(&mut self.comps);
+        *self = AxisLoop::new(a, self.t3_s, start, cmd_raw_m, cmd_nc_m, comps);
+    }
+
+    /// Takes new parameters, keeping every state (live editing).
+    pub fn retune(&mut self, a: &AxisParams) {
+        self.servo.retune(a);
+        self.plant.retune(a);
+        self.f_per_t = a.drive.force_per_torque();
+    }
+
+    /// The position feedback the amplifier closes its loop on, m.
+    #[inline]
+    pub fn feedback_m(&self) -> f64 {
+        feedback_of(self.servo.feedback(), self.plant.out())
+    }
+
+    /// One T3 period. Returns the force the motor put on the load.
+    #[inline]
+    pub fn step(&mut self, inp: &LoopInput) -> f64 {
+        self.step_inline(inp)
+    }
+
+    /// The T3 step itself: servo-stage compensations, amplifier, mechanics.
+    #[inline(always)]
+    fn step_inline(&mut self, inp: &LoopInput) -> f64 {
+        let o = *self.plant.out();
+        let fb = feedback_of(self.servo.feedback(), &o);
+        let mut add = ServoCompOut::default();
+        if !self.comps.is_empty() {
+            let ctx = ServoCompCtx {
+                t_s: inp.t_s,
+                t3_s: self.t3_s,
+                cmd_m: inp.cmd_nc_m,
+                prev_cmd_m: self.prev_cmd_nc_m,
+                fb_m: fb,
+            };
+            for c in &mut self.comps {
+                let mut one = ServoCompOut::default();
+                c.step(&ctx, &mut one);
+                add.pos_m += one.pos_m;
+                add.vel_mps += one.vel_mps;
+                add.torque_nm += one.torque_nm;
+            }
+        }
+        self.prev_cmd_nc_m = inp.cmd_nc_m;
+        let cmd_m = inp.cmd_nc_m + add.pos_m;
+        let force = self.servo.step(&ServoInput {
+            cmd_m,
+            ff_cmd_m: inp.cmd_raw_m,
+            fb_pos_m: fb,
+            motor_pos_m: o.motor_enc_m,
+            vel_add_mps: add.vel_mps,
+            force_ff_n: add.torque_nm * self.f_per_t,
+            acc_cmd_mps2: inp.acc_cmd_mps2,
+        });
+        self.plant.step(force, inp.ext_force_n);
+        self.sample = Sample {
+            plant: PlantOut {
+                friction_n: self.plant.out().friction_n,
+                ..o
+            },
+            cmd_raw_m: inp.cmd_raw_m,
+            cmd_nc_m: inp.cmd_nc_m,
+            cmd_m,
+            servo: *self.servo.output(),
+            servo_add: add,
+        };
+        force
+    }
+
+    /// Runs one period per input, handing each period's trace row to `sink`. The same step
+    /// as [`AxisLoop::step`], in a loop the compiler can keep the loop's state in registers
+    /// for: the machine runs each axis through its T2 period this way, the replay a whole
+    /// record.
+    #[inline]
+    pub fn run(&mut self, inputs: &[LoopInput], mut sink: impl FnMut(usize, &Sample)) {
+        for (j, inp) in inputs.iter().enumerate() {
+            self.step_inline(inp);
+            sink(j, &self.sample);
+        }
+    }
+
+    /// The trace row of the latest period.
+    pub fn sample(&self) -> &Sample {
+        &self.sample
+    }
+
+    /// The mechanics (read only: only [`AxisLoop::step`] moves them).
+    pub fn plant(&self) -> &AxisPlant {
+        &self.plant
+    }
+
+    /// The amplifier (read only).
+    pub fn servo(&self) -> &Servo {
+        &self.servo
+    }
+
+    /// Load-side force per motor torque.
+    pub fn force_per_torque(&self) -> f64 {
+        self.f_per_t
+    }
+
+    /// The servo-stage compensations of this axis.
+    pub fn comps(&self) -> &[Box<dyn ServoComp>] {
+        &self.comps
+    }
+
+    /// The servo-stage compensations, for a live edit of their parameters.
+    pub fn comps_mut(&mut self) -> &mut [Box<dyn ServoComp>] {
+        &mut self.comps
+    }
+
+    /// Replaces the servo-stage compensations (they start from their power-up state).
+    pub fn set_comps(&mut self, comps: Vec<Box<dyn ServoComp>>) {
+        self.comps = comps;
+    }
+
+    /// The loop's linear state, for [`closed_loop_matrix`].
+    fn linear_state(&self) -> [f64; N_STATE] {
+        let m = self.plant.mech_state();
+        let s = self.servo.state();
+        [
+            m.x_m,
+            m.v_m,
+            m.x_t,
+            m.v_t,
+            s.integ_n,
+            s.force_n,
+            s.motor_hist_m[0],
+            s.motor_hist_m[1],
+        ]
+    }
+
+    fn set_linear_state(&mut self, x: &[f64; N_STATE]) {
+        self.plant.set_mech_state(MechState {
+            x_m: x[0],
+            v_m: x[1],
+            x_t: x[2],
+            v_t: x[3],
+        });
+        let mut s = self.servo.state();
+        s.integ_n = x[4];
+        s.force_n = x[5];
+        s.motor_hist_m = [x[6], x[7]];
+        self.servo.set_state(s);
+    }
+}
+
+#[inline]
+fn feedback_of(f: Feedback, o: &PlantOut) -> f64 {
+    match f {
+        Feedback::Motor => o.motor_enc_m,
+        Feedback::Scale => o.scale_m,
+    }
+}
+
+/// The commanded acceleration the amplifier feeds forward: one value per T2 segment of the
+/// raw command. Inside a segment the command is a straight line (the amplifier subdivides
+/// it), so a per-T3 second difference would be a train of spikes at the segment joints.
+#[derive(Debug, Clone, Copy)]
+pub struct SegmentAcc {
+    inv_t2_per_s: f64,
+    prev_end_m: f64,
+    seg_vel_mps: f64,
+    acc_mps2: f64,
+}
+
+impl SegmentAcc {
+    /// Before the first segment, at rest at `start_m`.
+    pub fn new(t2_s: f64, start_m: f64) -> SegmentAcc {
+        SegmentAcc {
+            inv_t2_per_s: 1.0 / t2_s,
+            prev_end_m: start_m,
+            seg_vel_mps: 0.0,
+            acc_mps2: 0.0,
+        }
+    }
+
+    /// Before the first segment, moving through `start_m` at `vel_mps` (a record that starts
+    /// mid-motion).
+    pub fn moving(t2_s: f64, start_m: f64, vel_mps: f64) -> SegmentAcc {
+        SegmentAcc {
+            seg_vel_mps: vel_mps,
+            ..SegmentAcc::new(t2_s, start_m)
+        }
+    }
+
+    /// Starts the next T2 segment, which ends at `end_m`; returns its acceleration.
+    #[inline]
+    pub fn next_segment(&mut self, end_m: f64) -> f64 {
+        let v = (end_m - self.prev_end_m) * self.inv_t2_per_s;
+        self.acc_mps2 = (v - self.seg_vel_mps) * self.inv_t2_per_s;
+        self.seg_vel_mps = v;
+        self.prev_end_m = end_m;
+        self.acc_mps2
+    }
+
+    /// The acceleration of the current segment.
+    #[inline]
+    pub fn acc_mps2(&self) -> f64 {
+        self.acc_mps2
+    }
+
+    /// Where the current segment ends (the latest command handed to the amplifier), m.
+    #[inline]
+    pub fn end_m(&self) -> f64 {
+        self.prev_end_m
+    }
+}
+
+/// States of the linearised loop: motor x, v; table x, v; integrator; current-loop force;
+/// the two encoder readings the velocity loop remembers.
+const N_STATE: usize = 8;
+
+/// The axis without its nonlinear effects (friction, play, gravity, quantization, torque
+/// limit, thermal growth, lead error): what remains is linear, so one step of it is a
+/// matrix.
+fn linear_part(a: &AxisParams) -> AxisParams {
+    let mut l = a.clone();
+    l.friction.enabled = false;
+    l.friction.stribeck.enabled = false;
+    l.friction.stroke.enabled = false;
+    l.lost_motion.enabled = false;
+    l.gravity.enabled = false;
+    l.encoder.quantize_motor = false;
+    l.encoder.quantize_scale = false;
+    l.screw_thermal.enabled = false;
+    l.lead_error.enabled = false;
+    l.servo.torque_limit_nm = f64::INFINITY;
+    l
+}
+
+/// The transition matrix of one T3 period of the axis loop's linear part, obtained by
+/// stepping [`AxisLoop::step`] itself from unit states with the command held at zero.
+///
+/// Each state is scaled to a displacement per T3 (velocities by T3, forces by T3²/M). The
+/// scaling is a similarity transform, so the poles are unchanged, but it keeps the entries
+/// within a few decades of each other: unscaled, forces of 1e6 N against positions of 1 m make
+/// the eigen-solver report poles outside the unit circle for loops that are stable.
+pub fn closed_loop_matrix(a: &AxisParams, t3_s: f64) -> DMatrix<f64> {
+    let lin = linear_part(a);
+    let proto = AxisLoop::new(
+        &lin,
+        t3_s,
+        Start::at_rest(Sensor::MotorEncoder, 0.0),
+        0.0,
+        0.0,
+        vec![],
+    );
+    let f_scale = lin.drive.total_mass_kg() / (t3_s * t3_s);
+    let scale = [1.0, 1.0 / t3_s, 1.0, 1.0 / t3_s, f_scale, f_scale, 1.0, 1.0];
+    // Without an integral action the integrator is a constant that never moves: a pole at
+    // exactly 1 that says nothing about stability. Leave it out.
+    let states: Vec<usize> = (0..N_STATE)
+        .filter(|&i| i != 4 || proto.servo.has_integrator())
+        .collect();
+    let n = states.len();
+    let mut mat = DMatrix::<f64>::zeros(n, n);
+    for (col, &j) in states.iter().enumerate() {
+        let mut l = AxisLoop::new(
+            &lin,
+            t3_s,
+            Start::at_rest(Sensor::MotorEncoder, 0.0),
+            0.0,
+            0.0,
+            vec![],
+        );
+        let mut x = [0.0; N_STATE];
+        x[j] = scale[j];
+        l.set_linear_state(&x);
+        l.step(&LoopInput::default());
+        let y = l.linear_state();
+        for (row, &i) in states.iter().enumerate() {
+            mat[(row, col)] = y[i] / scale[i];
+        }
+    }
+    mat
+}
+
+/// Iterations the eigenvalue solver may take before the check gives up with an error.
+const EIGEN_MAX_ITER: usize = 10_000;
+
+/// The largest pole magnitude |z| of the axis loop's linear part at T3 = `t3_s`.
+pub fn spectral_radius(a: &AxisParams, t3_s: f64) -> Result<f64, String> {
+    let m = closed_loop_matrix(a, t3_s);
+    if m.iter().any(|v| !v.is_finite()) {
+        return Err(format!(
+            "the closed loop at T3 = {t3_s} s has a non-finite transition matrix; \
+             a gain, mass or lead is out of any physical range"
+        ));
+    }
+    let schur =
+        nalgebra::linalg::Schur::try_new(m, f64::EPSILON, EIGEN_MAX_ITER).ok_or_else(|| {
+            format!(
+                "the pole calculation did not converge in {EIGEN_MAX_ITER} iterations at \
+                 T3 = {t3_s} s; the gains are out of any physical range"
+            )
+        })?;
+    Ok(schur
+        .complex_eigenvalues()
+        .iter()
+        .map(|z| z.norm())
+        .fold(0.0_f64, f64::max))
+}
+
+/// Checks that every pole of the axis loop's linear part lies inside the unit circle.
+pub fn check_stability(a: &AxisParams, t3_s: f64) -> Result<(), String> {
+    let radius = spectral_radius(a, t3_s)?;
+    if radius.is_finite() && radius < 1.0 - 1e-9 {
+        Ok(())
+    } else {
+        Err(format!(
+            "the discrete closed loop at T3 = {t3_s} s is unstable: largest pole |z| = {radius:.4} ≥ 1 \
+             (lower kp_per_s / kv_n_s_per_m / ki_per_s, or shorten T3)"
+        ))
+    }
+}
