@@ -6,6 +6,7 @@
 //! program → [`nc`] (parse, interpolate, acc/dec, modes) → [`comp`] (position corrections)
 //! → [`servo`] (position/velocity loops, torque) → [`plant`] → [`trace`].
 //! [`machine::Machine`] wires one period T3 of all of it.
+#![warn(missing_docs)]
 
 pub mod analysis;
 pub mod bench;

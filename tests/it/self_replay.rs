@@ -88,7 +88,7 @@ fn every_shipped_preset_replays_its_own_trace() {
     let bad: Vec<&String> = report
         .iter()
         .zip(&worst)
-        .filter(|(_, &(p, f))| p > POS_TOL_UM || f > FORCE_TOL_N)
+        .filter(|&(_, &(p, f))| p > POS_TOL_UM || f > FORCE_TOL_N)
         .map(|(r, _)| r)
         .collect();
     assert!(
