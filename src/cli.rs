@@ -385,26 +385,7 @@ pub fn run(cli: Cli) -> Result<()> {
             base,
             out,
         }) => import(&from, &input, &base, &out),
-        Some(Command::Bench {
-            frames: Some(n), ..
-        }) => {
-            count_flag("--frames", n as u64, 1, 100_000)?;
-            let (mean, p99, max) = crate::app::bench_frames(n)?;
-            say!(
-                "frames={n} window=10s rate=8kHz plots=4 frame_ms_mean={mean:.3} frame_ms_p99={p99:.3} frame_ms_max={max:.3}"
-            );
-            Ok(())
-        }
-        Some(Command::Bench {
-            diagnose: Some(n), ..
-        }) => {
-            count_flag("--diagnose", n as u64, 1000, 10_000_000)?;
-            diag::bench(n)
-        }
-        Some(Command::Bench { steps, only, .. }) => {
-            count_flag("--steps", steps, 1000, 10_000_000_000)?;
-            bench(steps, only.as_deref())
-        }
+        Some(cmd @ Command::Bench { .. }) => bench_cmd(cmd),
         Some(Command::Diagnose {
             preset,
             trace,
@@ -451,6 +432,33 @@ pub fn run(cli: Cli) -> Result<()> {
             duration,
             kind,
         }) => gen_cases(&out, seed, duration, &kind),
+    }
+}
+
+/// `bench`: frame cost of the GUI, diagnosis throughput, or model steps per second.
+fn bench_cmd(cmd: Command) -> Result<()> {
+    match cmd {
+        Command::Bench {
+            frames: Some(n), ..
+        } => {
+            count_flag("--frames", n as u64, 1, 100_000)?;
+            let (mean, p99, max) = crate::app::bench_frames(n)?;
+            say!(
+                "frames={n} window=10s rate=8kHz plots=4 frame_ms_mean={mean:.3} frame_ms_p99={p99:.3} frame_ms_max={max:.3}"
+            );
+            Ok(())
+        }
+        Command::Bench {
+            diagnose: Some(n), ..
+        } => {
+            count_flag("--diagnose", n as u64, 1000, 10_000_000)?;
+            diag::bench(n)
+        }
+        Command::Bench { steps, only, .. } => {
+            count_flag("--steps", steps, 1000, 10_000_000_000)?;
+            bench(steps, only.as_deref())
+        }
+        _ => Ok(()),
     }
 }
 

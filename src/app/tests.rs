@@ -196,7 +196,8 @@ fn a_bad_program_keeps_the_old_one_and_names_the_line() {
 
 #[test]
 fn saves_are_atomic_files_that_load_back() {
-    let dir = std::env::temp_dir().join(format!("axisbench-app-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axisbench-app");
     std::fs::create_dir_all(&dir).expect("dir");
     let path = dir.join("mine.ron");
     let mut wb = default_wb();
@@ -257,7 +258,8 @@ fn decimation_keeps_extremes_and_bounds_the_point_count() {
 
 #[test]
 fn record_and_reopen_a_trace() {
-    let dir = std::env::temp_dir().join(format!("axisbench-app-tr-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axisbench-app-tr");
     std::fs::create_dir_all(&dir).expect("dir");
     let path = dir.join("rec.csv");
     let mut wb = default_wb();
@@ -318,7 +320,8 @@ fn diagnose_view_runs_and_applies_the_fitted_effect() {
 
 #[test]
 fn export_buttons_write_the_target_files_and_the_report() {
-    let dir = std::env::temp_dir().join(format!("axisbench-gui-export-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axisbench-gui-export");
     let _ = std::fs::remove_dir_all(&dir);
     let mut wb = default_wb();
     wb.path_input = dir.display().to_string();

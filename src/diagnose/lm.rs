@@ -171,11 +171,20 @@ pub fn std_devs(f: &LmFit, n_eff_per_row: f64) -> Vec<f64> {
     let ssr = r.norm_squared() * n;
     let dof = (n - f.theta.len() as f64).max(1.0);
     let s2 = ssr / dof / n_eff_per_row.clamp(1e-6, 1.0);
-    let jtj = jn.transpose() * &jn;
-    match jtj.try_inverse() {
-        Some(inv) => (0..f.theta.len())
-            .map(|i| (inv[(i, i)].max(0.0) * s2).sqrt())
-            .collect(),
-        None => vec![f64::INFINITY; f.theta.len()],
+    // A parameter pinned at a bound (a calibration ratio at its limit) has a zero column;
+    // it is left out, so that it does not make the others' uncertainty look infinite.
+    let norms: Vec<f64> = (0..jn.ncols()).map(|i| jn.column(i).norm()).collect();
+    let max_norm = norms.iter().copied().fold(0.0, f64::max);
+    let live: Vec<usize> = (0..jn.ncols())
+        .filter(|&i| norms[i] > 1e-9 * max_norm && norms[i] > 0.0)
+        .collect();
+    let jl = jn.select_columns(&live);
+    let jtj = jl.transpose() * &jl;
+    let mut std = vec![f64::INFINITY; f.theta.len()];
+    if let Some(inv) = jtj.try_inverse() {
+        for (k, &i) in live.iter().enumerate() {
+            std[i] = (inv[(k, k)].max(0.0) * s2).sqrt();
+        }
     }
+    std
 }

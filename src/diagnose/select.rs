@@ -113,28 +113,13 @@ struct Joint {
     params: Vec<Vec<f64>>,
 }
 
-fn joint_refit(
-    eng: &Engine,
+/// Bounds and start of the joint fit: the calibration ratios (a friction ratio pinned when a
+/// selected friction effect owns that quantity), then each re-fitted effect's parameters.
+fn joint_params(
     cal: &Calibration,
-    nominal: &Cand,
     selected: &[(Fitted, Scores)],
-    base: Cand,
-    base_eval: Eval,
-) -> Result<Joint, DiagnoseError> {
-    let unchanged = |base: Cand, eval: Eval| Joint {
-        cand: base,
-        eval,
-        ratios: cal.ratios.clone(),
-        params: selected.iter().map(|(f, _)| f.theta.clone()).collect(),
-    };
-    let refit: Vec<&Fitted> = selected
-        .iter()
-        .map(|(f, _)| f)
-        .filter(|f| f.refit)
-        .collect();
-    if refit.is_empty() {
-        return Ok(unchanged(base, base_eval));
-    }
+    refit: &[&Fitted],
+) -> (Vec<Param>, Vec<f64>) {
     let ps: Vec<CalParam> = cal.ratios.iter().map(|(p, _)| *p).collect();
     // A selected friction effect owns its calibration ratio (the two are one quantity).
     let owned = |p: CalParam| {
@@ -170,8 +155,8 @@ fn joint_refit(
             }
         })
         .collect();
-    let mut start: Vec<f64> = last_ratios.clone();
-    for f in &refit {
+    let mut start: Vec<f64> = last_ratios;
+    for f in refit {
         for (d, th) in f.effect.params().iter().zip(&f.theta) {
             params.push(Param {
                 lo: d.lo,
@@ -181,6 +166,33 @@ fn joint_refit(
             start.push(*th);
         }
     }
+    (params, start)
+}
+
+fn joint_refit(
+    eng: &Engine,
+    cal: &Calibration,
+    nominal: &Cand,
+    selected: &[(Fitted, Scores)],
+    base: Cand,
+    base_eval: Eval,
+) -> Result<Joint, DiagnoseError> {
+    let unchanged = |base: Cand, eval: Eval| Joint {
+        cand: base,
+        eval,
+        ratios: cal.ratios.clone(),
+        params: selected.iter().map(|(f, _)| f.theta.clone()).collect(),
+    };
+    let refit: Vec<&Fitted> = selected
+        .iter()
+        .map(|(f, _)| f)
+        .filter(|f| f.refit)
+        .collect();
+    if refit.is_empty() {
+        return Ok(unchanged(base, base_eval));
+    }
+    let ps: Vec<CalParam> = cal.ratios.iter().map(|(p, _)| *p).collect();
+    let (params, start) = joint_params(cal, selected, &refit);
     let build = |th: &[f64]| -> Cand {
         let mut c = nominal.clone();
         for (p, r) in ps.iter().zip(th) {

@@ -10,7 +10,8 @@ fn bin() -> Command {
 
 #[test]
 fn simulate_writes_a_trace_and_prints_a_summary() {
-    let out = std::env::temp_dir().join(format!("axisbench-cli-{}.csv", std::process::id()));
+    let tmp_out = tempfile::tempdir().expect("tempdir");
+    let out = tmp_out.path().join("axisbench-cli.csv");
     let o = bin()
         .args(["simulate", "--preset", "presets/default.ron", "--out"])
         .arg(&out)
@@ -30,7 +31,8 @@ fn simulate_writes_a_trace_and_prints_a_summary() {
 
 #[test]
 fn validate_exits_nonzero_listing_errors() {
-    let dir = std::env::temp_dir().join(format!("axisbench-cli-v-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axisbench-cli-v");
     std::fs::create_dir_all(&dir).expect("dir");
     let bad = dir.join("bad.ron");
     let text = axisbench::preset::embedded("default.ron")
@@ -69,7 +71,8 @@ fn no_display_points_to_the_cli() {
 
 #[test]
 fn a_bad_program_names_its_line() {
-    let dir = std::env::temp_dir().join(format!("axisbench-cli-p-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axisbench-cli-p");
     std::fs::create_dir_all(&dir).expect("dir");
     let prog = dir.join("bad.ngc");
     std::fs::write(&prog, "G90 G01 F1000\nX10\nG42 X3\n").expect("write");
@@ -151,7 +154,8 @@ fn export_and_import_through_the_binary() {
 
 #[test]
 fn diagnose_runs_the_documented_emps_command() {
-    let dir = std::env::temp_dir().join(format!("axb-diag-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axb-diag");
     std::fs::create_dir_all(&dir).expect("tmp");
     let report = dir.join("emps.json");
     let out = bin()
@@ -202,7 +206,8 @@ fn diagnose_runs_the_documented_emps_command() {
 
 #[test]
 fn diagnose_names_a_missing_column() {
-    let dir = std::env::temp_dir().join(format!("axb-diag-bad-{}", std::process::id()));
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("axb-diag-bad");
     std::fs::create_dir_all(&dir).expect("tmp");
     let f = dir.join("bad.csv");
     std::fs::write(&f, "t_s,qg_m,force_N\n0,0,0\n0.001,0,0\n").expect("write");

@@ -49,12 +49,13 @@ fn emps_coulomb_friction_is_found_with_the_published_force_and_offset_sign() {
     assert_eq!(r.ranking[0].effect, "coulomb_friction", "{:#?}", r.ranking);
     assert_eq!(r.verdict, "coulomb_friction");
     let fc = r.ranking[0].params["force_n"];
-    // Published IDIM-LS estimate on DATA_EMPS: Fc = 20.3935 N.
+    // Published IDIM-LS estimate on DATA_EMPS: Fc = 20.3935 N; issue 12 asks for 5 %.
     assert!(
-        (fc - 20.39).abs() <= 0.15 * 20.39,
+        (fc - 20.39).abs() <= 0.05 * 20.39,
         "Fc = {fc} N, published 20.39 N"
     );
-    assert!(r.ranking[0].params_std["force_n"] < 3.0);
+    let fc_std = r.ranking[0].params_std["force_n"];
+    assert!(fc_std.is_finite() && fc_std < 3.0, "Fc ± {fc_std} N");
     // Published offset −3.1648 N (motor-force offset convention).
     let cf = r
         .ranking

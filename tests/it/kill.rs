@@ -219,6 +219,7 @@ fn os(v: &[&str]) -> Vec<OsString> {
 }
 
 #[test]
+#[allow(clippy::too_many_lines)] // one scenario table, read top to bottom
 fn a_killed_save_export_or_import_leaves_the_old_or_the_new_files() {
     let tmp = tempfile::tempdir().expect("tempdir");
     let root = tmp.path();

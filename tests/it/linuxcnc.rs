@@ -48,12 +48,12 @@ fn require_linuxcnc() {
     );
 }
 
-/// A scratch folder for one case.
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("axisbench-lcnc-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("scratch dir");
-    d
+/// A scratch folder for one case, removed when the returned guard drops.
+fn scratch(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("axisbench-lcnc-{name}-"))
+        .tempdir()
+        .expect("scratch dir")
 }
 
 fn base() -> Preset {
@@ -256,7 +256,8 @@ fn exported_presets_match_the_real_linuxcnc_every_servo_period() {
     require_linuxcnc();
     let mut summary = Vec::new();
     for (name, p, program) in cases() {
-        let dir = scratch(name);
+        let scratch_dir = scratch(name);
+        let dir = scratch_dir.path();
         let preset_file = dir.join("preset.ron");
         std::fs::write(&preset_file, p.to_ron().expect("ron")).expect("write preset");
         for prog in &p.scenario.programs {
@@ -283,7 +284,7 @@ fn exported_presets_match_the_real_linuxcnc_every_servo_period() {
         let trace = dir.join("trace.csv");
         // One LinuxCNC at a time: the cases run one after the other in this test, and a
         // run of another checkout on this machine (its /tmp/linuxcnc.lock) is waited for.
-        let (o, log) = run_linuxcnc(&ini, &trace, &dir);
+        let (o, log) = run_linuxcnc(&ini, &trace, dir);
         assert!(o.status.success(), "{name}: LinuxCNC run failed:\n{log}");
         assert!(
             !log.contains("compensation values must increase")
