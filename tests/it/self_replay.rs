@@ -94,6 +94,9 @@ fn every_shipped_preset_replays_its_own_trace() {
     assert!(
         bad.is_empty(),
         "self-replay residual above {POS_TOL_UM} µm / {FORCE_TOL_N} N:\n{}",
-        bad.iter().map(|s| s.as_str()).collect::<Vec<_>>().join("\n")
+        bad.iter()
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>()
+            .join("\n")
     );
 }
