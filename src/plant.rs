@@ -19,11 +19,17 @@ const REVERSAL_SPEED_MPS: f64 = 1e-5;
 /// on zero velocity: no chatter and no drift at rest.
 #[derive(Debug, Clone)]
 pub struct FrictionModel {
+    /// Whether friction acts at all (off: the slide runs free).
     pub enabled: bool,
+    /// Kinetic (Coulomb) friction level, N, opposing the direction of motion.
     pub coulomb_n: f64,
+    /// Speed-proportional friction coefficient, N·s/m.
     pub viscous_n_s_per_m: f64,
+    /// Whether the Stribeck term applies: breakaway friction above Coulomb at low speed.
     pub stribeck: bool,
+    /// Breakaway (static) friction at zero speed when `stribeck` is on, N.
     pub static_n: f64,
+    /// Stribeck velocity, m/s: the excess over Coulomb falls as e^(−(v/v_s)²).
     pub stribeck_mps: f64,
     stribeck_inv_mps: f64,
 }
@@ -43,6 +49,7 @@ pub struct Body {
 }
 
 impl FrictionModel {
+    /// The friction of axis preset `a`, converted to SI.
     pub fn from_params(a: &AxisParams) -> FrictionModel {
         let f = &a.friction;
         FrictionModel {
@@ -136,6 +143,7 @@ impl FrictionModel {
 /// film down, long strokes rebuild it.
 #[derive(Debug, Clone)]
 pub struct StrokeFriction {
+    /// Whether the short-stroke rise applies (off: multiplier 1, nothing added).
     pub enabled: bool,
     pitch_m: f64,
     rise_ratio: f64,
@@ -239,15 +247,18 @@ impl StrokeFriction {
 /// First-order screw temperature and the elongation it causes.
 #[derive(Debug, Clone)]
 pub struct ScrewThermal {
+    /// Whether the screw heats and grows (off: no elongation).
     pub enabled: bool,
     alpha_per_k: f64,
     inv_capacity: f64,
     loss_w_per_k: f64,
     friction_heat_share: f64,
     motion_heat_w_s_per_m: f64,
+    /// Ambient temperature the screw loses its heat to, °C.
     pub ambient_c: f64,
     reference_c: f64,
     fixed_end_m: f64,
+    /// Current screw temperature, °C (traced, and read by the thermal compensation).
     pub temp_c: f64,
 }
 
@@ -337,11 +348,15 @@ pub struct PlantOut {
     pub pos_m: f64,
     /// Linear scale reading (quantized `pos_m`).
     pub scale_m: f64,
+    /// Table velocity, m/s.
     pub vel_mps: f64,
+    /// Friction force on the table over the last step, N (signed, against the motion).
     pub friction_n: f64,
     /// Motor minus table inside the backlash: −b/2 … +b/2 at the flanks.
     pub gap_m: f64,
+    /// Thermal elongation of the screw at the table, m (included in `pos_m`).
     pub thermal_m: f64,
+    /// Lead error at the table, m (included in `pos_m`).
     pub lead_err_m: f64,
 }
 
@@ -812,17 +827,26 @@ pub struct Beam {
     span_m: f64,
     ei_nm2: f64,
     w_n_per_m: f64,
+    /// The tool posts hanging on the beam, in preset order (at most two are used).
     pub posts: Vec<BeamPost>,
 }
 
+/// A tool post on the crossbeam: its weight loads the beam at its X position, and the sag
+/// there moves its Z.
 #[derive(Debug, Clone)]
 pub struct BeamPost {
+    /// Index of the axis moving the post along the beam, into the positions [`Beam::sag_m`]
+    /// reads.
     pub x_axis: usize,
+    /// Index of the post's vertical ram axis, which the sag displaces.
     pub z_axis: usize,
+    /// Weight of the post acting on the beam, N.
     pub weight_n: f64,
 }
 
 impl Beam {
+    /// The beam of `cb`, with post axes resolved to indices by `axis_index` (posts whose
+    /// axes are missing are left out); None when the crossbeam is disabled.
     pub fn new(cb: &Crossbeam, axis_index: impl Fn(&str) -> Option<usize>) -> Option<Beam> {
         if !cb.enabled {
             return None;

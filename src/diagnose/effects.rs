@@ -5,22 +5,44 @@ use super::replay::Model;
 use crate::preset::Coupling;
 use serde::Serialize;
 
+/// An unmodelled plant effect the diagnosis can fit to a record and write back into the
+/// preset: the hypotheses the residual is tested against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Effect {
+    /// Direction-dependent sliding friction (N) added to the nominal Coulomb force: shows
+    /// as force steps and following-error spikes at reversals.
     CoulombFriction,
+    /// Breakaway friction above the Coulomb level at low speed (excess N, decay speed mm/s).
     StribeckFriction,
+    /// Correction to the speed-proportional friction coefficient, N·s/m (may be negative).
     ViscousFriction,
+    /// Friction that rises over repeated short reversal strokes (rise N, groove/lead pitch mm).
     StrokeFriction,
+    /// Lost motion in the drive train (width µm): the table stands while the motor crosses it.
     Backlash,
+    /// Backlash plus a constant preload force (N) that makes the lost motion one-sided.
     BacklashAsymmetry,
+    /// Constant force on the table (N): unbalanced weight, cable drag or a load.
     ConstantForce,
+    /// Elastic drive train: a two-mass coupling (stiffness, damping, share of mass beyond the
+    /// spring) that rings after accelerations.
     Compliance,
+    /// Thermal growth of the screw heated by motion (heat per metre, time constant, fixed-end
+    /// position): a slow position drift.
     ThermalGrowth,
+    /// Sag of the crossbeam a tool post hangs from, seen at the post's Z as the posts move
+    /// along X (fitted: post weight, N).
     BeamSag,
+    /// Screw pitch error: a once-per-lead sinusoid (sin/cos µm) plus a cumulative slope (µm/m).
     LeadError,
+    /// Rounding of the measured position to a sensor resolution (µm).
     Quantization,
+    /// Constant lag (ms, may be negative) between the recorded command and the machine
+    /// acting on it; sits outside the plant.
     CommandDelay,
+    /// Force not explained by any state of the axis (a periodic wave, level steps or
+    /// bursts), shaped by a detector rather than by fixed parameters.
     ExternalDisturbance,
 }
 
@@ -28,9 +50,13 @@ pub enum Effect {
 /// seeds the fit.
 #[derive(Debug, Clone, Copy)]
 pub struct ParamDef {
+    /// Report and command-line key, unit in the name (`width_um`).
     pub key: &'static str,
+    /// Lower bound the fit keeps the parameter above, in the key's unit.
     pub lo: f64,
+    /// Upper bound, in the key's unit.
     pub hi: f64,
+    /// Typical magnitude: seeds the fit and scales its step.
     pub init: f64,
 }
 
@@ -47,6 +73,7 @@ macro_rules! p {
 }
 
 impl Effect {
+    /// Every candidate: the set a diagnosis tries when `--only` names none.
     pub const ALL: [Effect; 14] = [
         Effect::CoulombFriction,
         Effect::StribeckFriction,
@@ -84,6 +111,7 @@ impl Effect {
         }
     }
 
+    /// The effect with report/command-line name `s` (inverse of [`Effect::name`]).
     pub fn from_name(s: &str) -> Option<Effect> {
         Effect::ALL.into_iter().find(|e| e.name() == s)
     }

@@ -31,9 +31,11 @@ pub const KINDS: [Effect; 13] = [
 pub struct Rng(u64);
 
 impl Rng {
+    /// The generator for `seed`: the same seed gives the same stream, hence the same cases.
     pub fn new(seed: u64) -> Rng {
         Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03)
     }
+    /// The next 64 random bits (one SplitMix64 step).
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
@@ -45,12 +47,15 @@ impl Rng {
     pub fn f(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
+    /// Uniform in [lo, hi): draws a parameter magnitude.
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.f()
     }
+    /// −1 or +1 with equal odds: the sign of a signed parameter.
     pub fn sign(&mut self) -> f64 {
         if self.f() < 0.5 { -1.0 } else { 1.0 }
     }
+    /// Uniform index in 0..n (0 when n is 0).
     pub fn below(&mut self, n: usize) -> usize {
         ((self.f() * n as f64) as usize).min(n.saturating_sub(1))
     }
@@ -185,9 +190,15 @@ pub fn command(rng: &mut Rng, duration_s: f64, t3_s: f64) -> Vec<f64> {
 
 /// One generated case.
 pub struct Case {
+    /// The preset the diagnosis is given ([`nominal_preset`]); the truth differs from it by
+    /// the hidden effects and a few per cent of mass and friction.
     pub nominal: Preset,
+    /// The generated measurement: the command, and the truth's scale position and force
+    /// with noise added.
     pub record: Record,
+    /// Names of the hidden effects (empty: none), which the verdict is scored against.
     pub hidden: Vec<&'static str>,
+    /// Drawn parameters of the hidden effects, keyed `effect.key` (unit in the key).
     pub params: BTreeMap<String, f64>,
 }
 
@@ -344,23 +355,34 @@ pub fn bench_case(samples: usize, seed: u64) -> Result<Case, DiagnoseError> {
     case(seed, 1, samples as f64 * t3)
 }
 
+/// Settings of a blind-evaluation run (`diagnose-eval`).
 pub struct EvalConfig {
+    /// Number of cases in the run.
     pub cases: usize,
+    /// Seed of the run: the same seed gives the same cases.
     pub seed: u64,
+    /// Length of each generated record, s.
     pub duration_s: f64,
     /// Case numbers to run; empty: all of 0..cases.
     pub only: Vec<usize>,
 }
 
+/// What the diagnosis said about one case, next to what was hidden in it.
 #[derive(Debug, Clone)]
 pub struct CaseResult {
+    /// Names of the hidden effects (empty: none).
     pub hidden: Vec<&'static str>,
+    /// The diagnosis's verdict: the first effect selected, or "none".
     pub verdict: String,
+    /// The first two effects of the ranking.
     pub top2: Vec<String>,
+    /// Held-out shrink of the combined residual with the selected effects, 0..1.
     pub shrink: f64,
 }
 
+/// The results of a run and its headline figures.
 pub struct EvalResult {
+    /// Per case, in the order they were run.
     pub cases: Vec<CaseResult>,
 }
 
@@ -368,6 +390,7 @@ impl EvalResult {
     fn with_effect(&self) -> impl Iterator<Item = &CaseResult> {
         self.cases.iter().filter(|c| !c.hidden.is_empty())
     }
+    /// Share of the cases with a hidden effect whose verdict names one of them.
     pub fn top1(&self) -> f64 {
         let n = self.with_effect().count().max(1);
         self.with_effect()
@@ -375,6 +398,7 @@ impl EvalResult {
             .count() as f64
             / n as f64
     }
+    /// Share of the cases with a hidden effect that have one among the ranking's first two.
     pub fn top2(&self) -> f64 {
         let n = self.with_effect().count().max(1);
         self.with_effect()
@@ -382,6 +406,7 @@ impl EvalResult {
             .count() as f64
             / n as f64
     }
+    /// Share of the cases with nothing hidden in which the diagnosis still named an effect.
     pub fn false_alarms(&self) -> f64 {
         let none: Vec<&CaseResult> = self.cases.iter().filter(|c| c.hidden.is_empty()).collect();
         if none.is_empty() {
@@ -389,6 +414,7 @@ impl EvalResult {
         }
         none.iter().filter(|c| c.verdict != "none").count() as f64 / none.len() as f64
     }
+    /// Median held-out shrink of the cases with a hidden effect, 0..1.
     pub fn median_shrink(&self) -> f64 {
         let mut s: Vec<f64> = self.with_effect().map(|c| c.shrink).collect();
         if s.is_empty() {
@@ -397,6 +423,7 @@ impl EvalResult {
         s.sort_by(f64::total_cmp);
         s[s.len() / 2]
     }
+    /// Number of distinct effects hidden in the run: how much of [`KINDS`] it covered.
     pub fn kinds(&self) -> usize {
         let mut k: Vec<&str> = self.cases.iter().flat_map(|c| c.hidden.clone()).collect();
         k.sort_unstable();

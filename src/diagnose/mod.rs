@@ -27,16 +27,29 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+/// Why a diagnosis could not run or did not finish.
 #[derive(Debug, thiserror::Error)]
 pub enum DiagnoseError {
+    /// A record cannot be used with this preset and axis (foreign axes, missing or
+    /// non-finite columns).
     #[error("{file}: {reason}")]
-    Record { file: String, reason: String },
+    Record {
+        /// The record's file, as named to the user.
+        file: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A record or its column mapping could not be read.
     #[error(transparent)]
     Trace(#[from] TraceError),
+    /// A preset could not be loaded or is invalid.
     #[error(transparent)]
     Preset(#[from] PresetError),
+    /// Options or records that cannot be diagnosed together (hold-out fraction out of range,
+    /// records too short or mismatched, a replay that diverges).
     #[error("{0}")]
     Input(String),
+    /// The user raised the cancel flag of [`Progress`].
     #[error("cancelled")]
     Cancelled,
 }
@@ -44,7 +57,10 @@ pub enum DiagnoseError {
 /// Progress reports (fraction 0..1 and what is running) and the cancel flag, shared by the
 /// CLI's progress line and the GUI's progress bar.
 pub struct Progress<'a> {
+    /// Called with the fraction done (0..1) and a label of the current step.
     pub report: &'a (dyn Fn(f64, &str) + Sync),
+    /// Set from outside to stop the diagnosis at its next replay with
+    /// [`DiagnoseError::Cancelled`].
     pub cancel: &'a AtomicBool,
 }
 
@@ -163,17 +179,26 @@ pub fn base_axis_of(preset: &Preset, axis: &str) -> Option<String> {
         .map(|p| p.x_axis.clone())
 }
 
+/// One candidate effect in the report's ranking: its fitted parameters, how much it shrinks
+/// the residual, and the evidence for it.
 #[derive(Debug, Clone, Serialize)]
 pub struct RankEntry {
+    /// The effect's [`Effect::name`].
     pub effect: String,
+    /// Fitted parameters by key (unit in the key), plus further figures of the fit; for a
+    /// selected effect, the values after the joint re-fit.
     pub params: BTreeMap<String, f64>,
     /// One standard deviation of each parameter (from the fit's Jacobian, corrected for
     /// the residual's correlation time).
     pub params_std: BTreeMap<String, f64>,
     /// Position residual RMS in µm.
     pub fit_rms_before: f64,
+    /// Position residual RMS on the fitting part with the effect added, µm (before: the
+    /// calibrated model it was added to).
     pub fit_rms_after: f64,
+    /// Held-out position residual RMS of the calibrated model, µm.
     pub holdout_rms_before: f64,
+    /// Held-out position residual RMS with the effect added, µm.
     pub holdout_rms_after: f64,
     /// Held-out shrink of the combined (position and force) residual, 0..1.
     pub shrink: f64,
@@ -183,7 +208,10 @@ pub struct RankEntry {
     pub shrink_force: Option<f64>,
     /// Shrink minus the complexity penalty: the ranking key.
     pub score: f64,
+    /// Whether the effect counts as found: its signature test passed and its score and
+    /// fitting residual improved enough (for quantization the signature alone decides).
     pub significant: bool,
+    /// Remark on the fit: why the effect is or is not counted.
     pub note: String,
     /// The figures that support the effect besides the shrink (its signature test).
     pub evidence: String,
@@ -193,34 +221,59 @@ pub struct RankEntry {
     pub evidence_figures: BTreeMap<String, f64>,
 }
 
+/// Held-out position residual of the nominal model ("before") against the model with the
+/// selected effects ("after"), µm: the headline of how much the diagnosis explains.
 #[derive(Debug, Clone, Serialize)]
 pub struct Figures {
+    /// RMS with the nominal model, µm.
     pub rms_before: f64,
+    /// RMS with the selected effects, µm.
     pub rms_after: f64,
+    /// Largest |residual| with the nominal model, µm.
     pub peak_before: f64,
+    /// Largest |residual| with the selected effects, µm.
     pub peak_after: f64,
+    /// 1 − rms_after/rms_before (position only, from the nominal, unlike [`Report::shrink`]).
     pub shrink: f64,
 }
 
+/// [`Figures`] for the held-out samples of one regime: shows in which phase of motion the
+/// selected effects removed the misfit.
 #[derive(Debug, Clone, Serialize)]
 pub struct RegimeChange {
+    /// The regime's [`Regime::name`].
     pub name: String,
+    /// Position residual RMS in the regime with the nominal model, µm.
     pub rms_before: f64,
+    /// Position residual RMS in the regime with the selected effects, µm.
     pub rms_after: f64,
+    /// Largest |residual| in the regime with the nominal model, µm.
     pub peak_before: f64,
+    /// Largest |residual| in the regime with the selected effects, µm.
     pub peak_after: f64,
+    /// 1 − rms_after/rms_before.
     pub shrink: f64,
 }
 
+/// The outcome of one diagnosis, as the CLI prints it, the GUI shows it and JSON stores it.
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
+    /// Name of the preset diagnosed against.
     pub preset: String,
+    /// The axis diagnosed.
     pub axis: String,
+    /// The axis whose position bins [`Report::base_bins`] (a crossbeam post's X, a cross
+    /// table's base axis); None when the axis has none.
     pub base_axis: Option<String>,
+    /// Sample period of the replay grid (the model's T3 cycle), s.
     pub t3_s: f64,
+    /// Whether the record was sampled at another period and interpolated onto T3.
     pub resampled: bool,
+    /// Samples in the fitting part.
     pub samples_fit: usize,
+    /// Samples in the held-out part that scores the candidates.
     pub samples_holdout: usize,
+    /// Where the held-out part comes from: "validation record" or "end of the record".
     pub holdout_source: String,
     /// Constant time offset between the record and the model (positive: the machine lags
     /// the model): the lag position and force share, in ms.
@@ -235,23 +288,33 @@ pub struct Report {
     pub holdout_masked: usize,
     /// Units of the figures: position residuals in µm, force residuals in N.
     pub units: String,
+    /// Name of the first effect selected (the one explaining most), or "none".
     pub verdict: String,
+    /// Names of the selected effects, in the order they were added.
     pub selected: Vec<String>,
     /// Held-out shrink of the combined residual with all selected effects, 0..1.
     pub shrink: f64,
+    /// The candidates fitted on the calibrated model: found ones first, then by score.
     pub ranking: Vec<RankEntry>,
     /// Held-out position residual of the nominal model, per regime.
     pub regimes: Vec<RegimeStat>,
+    /// Held-out position residual of the nominal model in 10 bins of measured position, mm.
     pub position_bins: Vec<BinStat>,
+    /// The same in 10 bins of the base axis's position, mm (empty without a recorded base).
     pub base_bins: Vec<BinStat>,
+    /// The same in 10 bins of record time, s.
     pub time_bins: Vec<BinStat>,
     /// Worst held-out windows that remain after the selected effects.
     pub windows: Vec<Window>,
     /// Worst held-out windows of the nominal model.
     pub windows_before: Vec<Window>,
+    /// Held-out force residual RMS of the nominal model, N (None without a force column).
     pub force_rms_before: Option<f64>,
+    /// Held-out force residual RMS with the selected effects, N.
     pub force_rms_after: Option<f64>,
+    /// Held-out position residual, nominal against the selected effects, over all samples.
     pub overall: Figures,
+    /// The same per regime of the held-out command.
     pub per_regime: Vec<RegimeChange>,
     /// The fitted preset with the selected effects (for "apply to model").
     #[serde(skip)]
@@ -262,12 +325,18 @@ pub struct Report {
     pub series: Option<Series>,
 }
 
+/// The held-out part sample by sample, for the GUI's residual plots.
 #[derive(Debug, Clone)]
 pub struct Series {
+    /// Record time of each sample, s.
     pub t_s: Vec<f64>,
+    /// Measured position, mm.
     pub pos_mm: Vec<f64>,
+    /// Position residual (measured − simulated) of the nominal model, µm.
     pub before_um: Vec<f64>,
+    /// Position residual with the selected effects, µm.
     pub after_um: Vec<f64>,
+    /// Regime of each sample, from the held-out command.
     pub regimes: Vec<Regime>,
 }
 

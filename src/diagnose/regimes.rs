@@ -3,18 +3,29 @@
 
 use serde::Serialize;
 
+/// Phase of motion a sample belongs to, read from the commanded position: where in the
+/// motion a residual sits points to its cause (friction at reversals, inertia in ramps).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Regime {
+    /// Around a change from positive to negative speed (widened by [`REVERSAL_HALF_WINDOW_S`]
+    /// each side).
     ReversalPosToNeg,
+    /// Around a change from negative to positive speed (widened likewise).
     ReversalNegToPos,
+    /// Speed magnitude rising (|acceleration| above 2 % of the command's peak acceleration).
     Acceleration,
+    /// Speed magnitude falling (|deceleration| above 2 % of the command's peak acceleration).
     Deceleration,
+    /// Moving at near-constant speed (|acceleration| within 2 % of the command's peak
+    /// acceleration).
     ConstantFeed,
+    /// Not moving: speed within 0.1 % of the command's peak speed.
     Standstill,
 }
 
 impl Regime {
+    /// Every regime, in the order reports list them.
     pub const ALL: [Regime; 6] = [
         Regime::ReversalPosToNeg,
         Regime::ReversalNegToPos,
@@ -24,6 +35,7 @@ impl Regime {
         Regime::Standstill,
     ];
 
+    /// The snake_case name used in reports and the serialized report.
     pub fn name(self) -> &'static str {
         match self {
             Regime::ReversalPosToNeg => "reversal_pos_to_neg",
@@ -118,13 +130,18 @@ fn moving_avg(x: &[f64], h: usize) -> Vec<f64> {
         .collect()
 }
 
+/// Residual statistics of one regime: how much of the misfit lies in that phase of motion.
 #[derive(Debug, Clone, Serialize)]
 pub struct RegimeStat {
+    /// The regime's [`Regime::name`].
     pub name: String,
     /// Fraction of the residual energy (Σr²) in this regime.
     pub share: f64,
+    /// Residual RMS over the regime's samples, in the residual's unit (µm in a report).
     pub rms: f64,
+    /// Largest |residual| in the regime, same unit.
     pub peak: f64,
+    /// Number of samples labelled with the regime.
     pub samples: usize,
 }
 
@@ -151,13 +168,22 @@ pub fn per_regime(r: &[f64], labels: &[Regime]) -> Vec<RegimeStat> {
         .collect()
 }
 
+/// Residual statistics of one bin of position, base position or time: a misfit tied to a
+/// place (lead error, sag) or a moment (drift) shows as uneven bins.
 #[derive(Debug, Clone, Serialize)]
 pub struct BinStat {
+    /// Lower edge of the bin, in the key's unit (mm for positions, s for time).
     pub lo: f64,
+    /// Upper edge of the bin, same unit.
     pub hi: f64,
+    /// Fraction of the residual energy (Σr²) in this bin.
     pub share: f64,
+    /// Residual RMS over the bin's samples (0 if empty), in the residual's unit (µm in a
+    /// report).
     pub rms: f64,
+    /// Largest |residual| in the bin, same unit.
     pub peak: f64,
+    /// Number of samples whose key falls in the bin.
     pub samples: usize,
 }
 
@@ -193,10 +219,15 @@ pub fn per_bin(r: &[f64], key: &[f64], nbins: usize) -> Vec<BinStat> {
         .collect()
 }
 
+/// A short time span with a large residual peak: points at the individual events where the
+/// model fails worst.
 #[derive(Debug, Clone, Serialize)]
 pub struct Window {
+    /// Start time of the window, s (record time).
     pub t_start: f64,
+    /// End time of the window, s.
     pub t_end: f64,
+    /// Largest |residual| in the window, in the residual's unit (µm in a report).
     pub peak: f64,
 }
 

@@ -14,14 +14,20 @@ use crate::units::mm_to_m;
 /// One axis of a measured record on the model's uniform T3 grid, in SI units.
 #[derive(Debug, Clone)]
 pub struct Record {
+    /// Name of the preset axis the columns belong to.
     pub axis: String,
+    /// Sample period, s: the model's T3 cycle the record was put on.
     pub t3_s: f64,
     /// Time of the first sample (the record's own clock).
     pub t0_s: f64,
+    /// Interpolated position command before compensation, m: drives the replay.
     pub cmd_m: Vec<f64>,
     /// Total compensation the controller added to the command, when recorded.
     pub comp_m: Option<Vec<f64>>,
+    /// Measured position as the record's position sensor reads it, m: what the replay is
+    /// compared against.
     pub pos_m: Vec<f64>,
+    /// Measured load-side motor force, N, when recorded: the second residual channel.
     pub force_n: Option<Vec<f64>>,
     /// Position of the base axis (cross tables, beam sag), when the record has one.
     pub base_pos_m: Option<Vec<f64>>,
@@ -39,14 +45,17 @@ pub struct Record {
 }
 
 impl Record {
+    /// Number of samples.
     pub fn len(&self) -> usize {
         self.cmd_m.len()
     }
 
+    /// Whether the record has no samples.
     pub fn is_empty(&self) -> bool {
         self.cmd_m.is_empty()
     }
 
+    /// Time of sample `i` on the record's own clock, s.
     pub fn t_s(&self, i: usize) -> f64 {
         self.t0_s + i as f64 * self.t3_s
     }
