@@ -1,9 +1,12 @@
 //! Read arbitrary bytes as a trace CSV through the same path as files (with the EMPS or the
 //! mill mapping when the header looks like one), check what the reader promises, and when
-//! it has x.cmd/x.pos lay the record on a T3 grid of bounded length.
+//! it has x.cmd/x.pos lay the record on a T3 grid of bounded length and replay its first
+//! samples through the EMPS preset's axis (the diagnosis's replay): the output stays finite
+//! or the replay says the model diverged.
 #![no_main]
 
-use axisbench::diagnose::replay::{MAX_REPLAY_SAMPLES, Record};
+use axisbench::diagnose::replay::{self, MAX_REPLAY_SAMPLES, Model, Record};
+use axisbench::preset;
 use axisbench::trace::{MAX_TRACE_ROWS, Mapping, Trace};
 use libfuzzer_sys::fuzz_target;
 
@@ -13,6 +16,8 @@ const MILL: &str = "t[s]=t_s, x.cmd[mm]=X1_CommandPosition, x.pos[mm]=X1_ActualP
 /// skipped unless the replay refuses them anyway (past MAX_REPLAY_SAMPLES).
 const MAX_FUZZ_GRID: f64 = 100_000.0;
 const T3_S: f64 = 0.001;
+/// Samples replayed per input.
+const REPLAY_SAMPLES: usize = 2000;
 
 fuzz_target!(|data: &[u8]| {
     let head = &data[..data.len().min(4096)];
@@ -51,5 +56,25 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(r) = Record::from_trace(&trace, "fuzz.csv", "x", None, T3_S) {
         assert!(r.len() <= MAX_REPLAY_SAMPLES);
         assert!(r.cmd_m.iter().chain(&r.pos_m).all(|x| x.is_finite()));
+        let Ok(lp) = preset::load_embedded("emps.ron") else {
+            return;
+        };
+        let p = &lp.preset;
+        let model = Model {
+            axis: p.axes[0].clone(),
+            t3_s: T3_S,
+            t2_s: T3_S,
+            pos_source: r.pos_source.unwrap_or(p.diagnose.pos_source),
+            delay_s: 0.0,
+            disturbance: vec![],
+            beam: None,
+        };
+        let n = r.len().min(REPLAY_SAMPLES);
+        let out = replay::simulate(&model, &r, n);
+        assert!(out.pos_m.len() <= n && out.force_n.len() == out.pos_m.len());
+        assert!(
+            out.pos_m.iter().chain(&out.force_n).all(|x| !x.is_nan()),
+            "NaN in the replay"
+        );
     }
 });
