@@ -252,7 +252,7 @@ pub fn reversal_evidence(ctx: &Context, effect: Effect) -> Evidence {
     let mut near = vec![false; n];
     let mut reversals = 0usize;
     let mut last = 0.0;
-    for (k, &v) in s.vel_mps.iter().enumerate() {
+    for (k, &v) in s.cmd_vel_mps.iter().enumerate() {
         let d = dir(v);
         if d != 0.0 && last != 0.0 && d != last {
             reversals += 1;

@@ -22,7 +22,11 @@ use super::engine::{Cand, Engine, Eval, Scores};
 use super::lm::{self, Param};
 
 /// Smallest held-out shrink (after the complexity penalty) that counts as an effect.
-pub const MIN_SHRINK: f64 = 0.10;
+pub const MIN_SHRINK: f64 = 0.05;
+
+/// Complexity penalty per parameter, in held-out shrink, for an effect whose signature was
+/// found (the engine's full penalty applies otherwise).
+pub const PENALTY_WITH_SIGNATURE: f64 = 0.005;
 /// A signature term must stand this many standard errors clear of zero.
 pub const MIN_T: f64 = 6.0;
 
@@ -69,6 +73,10 @@ pub struct Signals {
     pub vel_mps: Vec<f64>,
     /// Measured acceleration, m/s².
     pub acc_mps2: Vec<f64>,
+    /// Commanded velocity over the same ±5 ms as the measured one, m/s: the reversals a
+    /// play or a friction change sits at are the command's (a hunting drive's measured
+    /// velocity changes sign all the time).
+    pub cmd_vel_mps: Vec<f64>,
     /// Commanded acceleration, m/s².
     pub cmd_acc_mps2: Vec<f64>,
     /// Position residual of the base model, m.
@@ -110,6 +118,7 @@ impl Signals {
         Signals {
             t_s: (0..n).map(|k| rec.t_s(k)).collect(),
             cmd_acc_mps2: derivative(&cmd_vel, 1, dt),
+            cmd_vel_mps: derivative(&rec.cmd_m[..n], h, dt),
             pos_m: pos,
             vel_mps: vel,
             acc_mps2: acc,
@@ -456,6 +465,12 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         .eng
         .j(&ctx.base_eval.fit_pos, ctx.base_eval.fit_force.as_deref());
     let fit_a = ctx.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
+    if f.evidence.pass {
+        // The signature test already says the shape is in the residual, and the shrink is
+        // measured on held-out data, so a shape with many coefficients (a lead error's
+        // harmonics) is not also charged the full per-parameter penalty.
+        s.score = s.shrink - PENALTY_WITH_SIGNATURE * f.n_params as f64;
+    }
     s.significant = if f.effect == Effect::Quantization {
         // Rounding cannot be predicted sample by sample, so modelling the grid does not
         // shrink the residual; the grid is proven by the positions themselves.
