@@ -22,11 +22,30 @@ use super::engine::{Cand, Engine, Eval, Scores};
 use super::lm::{self, Param};
 
 /// Smallest held-out shrink (after the complexity penalty) that counts as an effect.
-pub const MIN_SHRINK: f64 = 0.05;
+pub const MIN_SHRINK: f64 = 0.10;
 
 /// Complexity penalty per parameter, in held-out shrink, for an effect whose signature was
 /// found (the engine's full penalty applies otherwise).
 pub const PENALTY_WITH_SIGNATURE: f64 = 0.005;
+
+/// Smallest held-out shrink (after the penalty) for an effect whose signature is a shape
+/// test on the residual (a pitch, a resonance, a drift, a play at the reversals). Friction,
+/// force and delay terms are regressions any small mismatch of the nominal can pass, and
+/// the external disturbance's evidence is only "what no state explains": they keep
+/// [`MIN_SHRINK`] and the full penalty.
+pub const MIN_SHRINK_WITH_SHAPE: f64 = 0.05;
+
+/// Whether `e`'s signature is a shape test (see [`MIN_SHRINK_WITH_SHAPE`]).
+fn has_shape_test(e: Effect) -> bool {
+    matches!(
+        e,
+        Effect::LeadError
+            | Effect::Compliance
+            | Effect::ThermalGrowth
+            | Effect::Backlash
+            | Effect::BacklashAsymmetry
+    )
+}
 /// A signature term must stand this many standard errors clear of zero.
 pub const MIN_T: f64 = 6.0;
 
@@ -465,7 +484,7 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         .eng
         .j(&ctx.base_eval.fit_pos, ctx.base_eval.fit_force.as_deref());
     let fit_a = ctx.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
-    if f.evidence.pass {
+    if f.evidence.pass && has_shape_test(f.effect) {
         // The signature test already says the shape is in the residual, and the shrink is
         // measured on held-out data, so a shape with many coefficients (a lead error's
         // harmonics) is not also charged the full per-parameter penalty.
@@ -476,7 +495,12 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         // shrink the residual; the grid is proven by the positions themselves.
         f.evidence.pass
     } else {
-        f.evidence.pass && s.score >= MIN_SHRINK && fit_a < fit_b
+        let min = if has_shape_test(f.effect) {
+            MIN_SHRINK_WITH_SHAPE
+        } else {
+            MIN_SHRINK
+        };
+        f.evidence.pass && s.score >= min && fit_a < fit_b
     };
     if f.effect == Effect::Quantization && s.significant {
         s.score = s.score.max(
