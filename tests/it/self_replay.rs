@@ -88,12 +88,15 @@ fn every_shipped_preset_replays_its_own_trace() {
     let bad: Vec<&String> = report
         .iter()
         .zip(&worst)
-        .filter(|(_, &(p, f))| p > POS_TOL_UM || f > FORCE_TOL_N)
+        .filter(|&(_, &(p, f))| p > POS_TOL_UM || f > FORCE_TOL_N)
         .map(|(r, _)| r)
         .collect();
     assert!(
         bad.is_empty(),
         "self-replay residual above {POS_TOL_UM} µm / {FORCE_TOL_N} N:\n{}",
-        bad.iter().map(|s| s.as_str()).collect::<Vec<_>>().join("\n")
+        bad.iter()
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>()
+            .join("\n")
     );
 }
