@@ -415,6 +415,9 @@ pub fn circle_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         });
 }
 
+/// Points with a legend label each.
+type LabelledPoints = Vec<(String, [f64; 2])>;
+
 /// The beam's deflection profile (x mm, −Z µm) under `loads` (post x m, weight N), and each
 /// post's point on it, labelled by its X axis.
 fn sag_profile(
@@ -422,7 +425,7 @@ fn sag_profile(
     beam: &axisbench::plant::Beam,
     loads: &[(f64, f64)],
     span_m: f64,
-) -> (Vec<[f64; 2]>, Vec<(String, [f64; 2])>) {
+) -> (Vec<[f64; 2]>, LabelledPoints) {
     let point = |x_m: f64| [m_to_mm(x_m), -m_to_um(beam.deflection_m(x_m, loads))];
     let profile = (0..=200)
         .map(|i| point(span_m * i as f64 / 200.0))
