@@ -18,12 +18,11 @@
 
 mod decimal;
 mod read;
-mod signal;
 mod unit;
 mod write;
 
-pub use signal::AxisSignal;
-pub use unit::{Quantity, UNITS, Unit, check_unit, display_unit_of, expected_quantities, unit};
+pub use crate::signal::{AxisSignal, Quantity};
+pub use unit::{UNITS, Unit, check_unit, display_unit_of, expected_quantities, unit};
 pub use write::push_value;
 
 /// Most data rows a trace may have: 20 M rows are 5.5 h at 1 kHz, 42 min at 8 kHz.

@@ -115,10 +115,10 @@ fn plot_defs(a: &str, ring: &Ring) -> Vec<(&'static str, Vec<LineDef>)> {
     let has = |s: &str| ring.col(s).is_some();
     let mut comps = vec![];
     for (sig, label) in [
-        ("backlash_comp", "backlash [µm]"),
-        ("thermal_comp", "thermal F' at x [µm]"),
+        (S::BacklashComp.name(), "backlash [µm]"),
+        (S::ThermalComp.name(), "thermal F' at x [µm]"),
         ("thermal_f", "thermal F [µm]"),
-        ("cross_comp", "cross ΔZ [µm]"),
+        (S::CrossComp.name(), "cross ΔZ [µm]"),
     ] {
         let name = format!("{a}.{sig}");
         if has(&name) {

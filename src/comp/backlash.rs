@@ -25,7 +25,7 @@
 
 use super::{CompSignal, PosCompCtx, PositionComp};
 use crate::preset::comp::{BacklashParams, FunctionBasis, OutputMode};
-use crate::trace::AxisSignal;
+use crate::signal::AxisSignal;
 use crate::units::{ms_to_s, um_to_m};
 
 /// Commanded travel per cycle below this (m) is standstill, not a direction.

@@ -13,7 +13,7 @@
 
 use super::{CompSignal, PosCompCtx, PositionComp};
 use crate::preset::comp::CrossTable;
-use crate::trace::AxisSignal;
+use crate::signal::AxisSignal;
 use crate::units::{mm_to_m, um_to_m};
 
 /// One installed table, in SI.

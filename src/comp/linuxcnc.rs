@@ -27,7 +27,7 @@
 //! operations as the C code, because the conformance test compares to 1e-6 mm.
 
 use super::{CompSignal, PosCompCtx, PositionComp};
-use crate::trace::Quantity;
+use crate::signal::Quantity;
 use crate::units::{m_to_mm, mm_to_m};
 
 /// `EMCMOT_COMP_SIZE`: rows a joint's comp table can hold.

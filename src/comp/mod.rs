@@ -21,7 +21,7 @@ pub mod quadrant;
 pub mod thermal;
 
 use crate::preset::{AxisParams, Preset};
-use crate::trace::Quantity;
+use crate::signal::Quantity;
 
 /// A trace column a compensation writes: (axis name or "" for machine-wide, signal, what it
 /// measures).

@@ -14,7 +14,7 @@
 
 use super::{CompSignal, ServoComp, ServoCompCtx, ServoCompOut};
 use crate::preset::comp::{Injection, NUpdate, PulseShape, QuadrantParams};
-use crate::trace::{AxisSignal, Quantity};
+use crate::signal::{AxisSignal, Quantity};
 use crate::units::{mm_per_s_to_m_per_s, mm_to_m, um_to_m};
 
 /// Quadrant compensation of one axis.

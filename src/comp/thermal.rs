@@ -23,7 +23,7 @@
 
 use super::{CompSignal, PosCompCtx, PositionComp};
 use crate::preset::comp::{Judgement, Source, ThermalParams};
-use crate::trace::{AxisSignal, Quantity};
+use crate::signal::{AxisSignal, Quantity};
 use crate::units::{m_to_um, mm_to_m};
 use nalgebra::{DMatrix, DVector};
 

@@ -6,71 +6,8 @@
 //! float: a value written and read back is the same `f64`, bit for bit.
 
 use super::{QUOTE_CHARS, quote};
+use crate::signal::{AxisSignal, Quantity};
 use crate::units;
-
-/// What a unit measures. A signal's unit must measure what the signal means: `x.pos[mm/s]`
-/// is a velocity where a length is meant, and is refused rather than silently mis-scaled.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Quantity {
-    /// m, mm, um.
-    Length,
-    /// s, ms.
-    Time,
-    /// m/s, mm/s, mm/min.
-    Velocity,
-    /// N.
-    Force,
-    /// N*m.
-    Torque,
-    /// A.
-    Current,
-    /// degC.
-    Temperature,
-    /// No unit: counts, modes, ratios.
-    Plain,
-}
-
-impl Quantity {
-    /// The name used in messages.
-    pub fn name(self) -> &'static str {
-        match self {
-            Quantity::Length => "a length",
-            Quantity::Time => "a time",
-            Quantity::Velocity => "a velocity",
-            Quantity::Force => "a force",
-            Quantity::Torque => "a torque",
-            Quantity::Current => "a current",
-            Quantity::Temperature => "a temperature",
-            Quantity::Plain => "a plain number",
-        }
-    }
-
-    /// The unit a trace holds this quantity in: SI (m, s, m/s, N, N*m, A, degC, none), the
-    /// units the model computes in, so nothing converts between model and trace.
-    pub fn si_unit(self) -> &'static str {
-        match self {
-            Quantity::Length => "m",
-            Quantity::Time => "s",
-            Quantity::Velocity => "m/s",
-            Quantity::Force => "N",
-            Quantity::Torque => "N*m",
-            Quantity::Current => "A",
-            Quantity::Temperature => "degC",
-            Quantity::Plain => "",
-        }
-    }
-
-    /// The unit a trace file is written in: mm and mm/s for lengths and velocities (what an
-    /// engineer reads in a CNC record), SI for the rest. Both are powers of ten of SI, so the
-    /// file holds the exact decimal of each in-memory value.
-    pub fn display_unit(self) -> &'static str {
-        match self {
-            Quantity::Length => "mm",
-            Quantity::Velocity => "mm/s",
-            q => q.si_unit(),
-        }
-    }
-}
 
 /// An accepted unit: what it measures and how its values become SI.
 #[derive(Debug, Clone, Copy)]
@@ -228,7 +165,7 @@ fn all_unit_names() -> String {
 }
 
 /// What the unit of signal `name` must measure: `t` a time, `mode` (and `mode.<channel>`)
-/// nothing, `temp.<name>` a temperature, `<axis>.<signal>` per [`super::AxisSignal`]. None
+/// nothing, `temp.<name>` a temperature, `<axis>.<signal>` per [`AxisSignal`]. None
 /// for a signal it does not know, which keeps any accepted unit.
 pub fn expected_quantities(name: &str) -> Option<&'static [Quantity]> {
     if name == "t" {
@@ -241,7 +178,7 @@ pub fn expected_quantities(name: &str) -> Option<&'static [Quantity]> {
         return Some(&[Quantity::Temperature]);
     }
     let (_, signal) = name.split_once('.')?;
-    super::AxisSignal::from_name(signal).map(super::AxisSignal::quantities)
+    AxisSignal::from_name(signal).map(AxisSignal::quantities)
 }
 
 /// Checks that unit `unit_name` is accepted and fits signal `name`; the reason when not.

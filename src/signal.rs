@@ -1,8 +1,74 @@
-//! The per-axis signals a trace knows (`<axis>.<signal>`): one enum instead of string tables,
-//! so the machine that records them, the reader that checks their units and the code that
-//! reads them agree on every name.
+//! The vocabulary of recorded signals: what a value measures ([`Quantity`], with its SI and
+//! display units) and the per-axis signals a trace knows ([`AxisSignal`], `<axis>.<signal>`).
+//! One enum instead of string tables, so the machine that records them, the compensations
+//! that add theirs, the reader that checks their units and the code that reads them agree on
+//! every name. It depends on nothing, so every layer may use it; [`crate::trace`] re-exports it.
 
-use super::Quantity::{self, Current, Force, Length, Torque, Velocity};
+use Quantity::{Current, Force, Length, Torque, Velocity};
+
+/// What a unit measures. A signal's unit must measure what the signal means: `x.pos[mm/s]`
+/// is a velocity where a length is meant, and is refused rather than silently mis-scaled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quantity {
+    /// m, mm, um.
+    Length,
+    /// s, ms.
+    Time,
+    /// m/s, mm/s, mm/min.
+    Velocity,
+    /// N.
+    Force,
+    /// N*m.
+    Torque,
+    /// A.
+    Current,
+    /// degC.
+    Temperature,
+    /// No unit: counts, modes, ratios.
+    Plain,
+}
+
+impl Quantity {
+    /// The name used in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Quantity::Length => "a length",
+            Quantity::Time => "a time",
+            Quantity::Velocity => "a velocity",
+            Quantity::Force => "a force",
+            Quantity::Torque => "a torque",
+            Quantity::Current => "a current",
+            Quantity::Temperature => "a temperature",
+            Quantity::Plain => "a plain number",
+        }
+    }
+
+    /// The unit a trace holds this quantity in: SI (m, s, m/s, N, N*m, A, degC, none), the
+    /// units the model computes in, so nothing converts between model and trace.
+    pub fn si_unit(self) -> &'static str {
+        match self {
+            Quantity::Length => "m",
+            Quantity::Time => "s",
+            Quantity::Velocity => "m/s",
+            Quantity::Force => "N",
+            Quantity::Torque => "N*m",
+            Quantity::Current => "A",
+            Quantity::Temperature => "degC",
+            Quantity::Plain => "",
+        }
+    }
+
+    /// The unit a trace file is written in: mm and mm/s for lengths and velocities (what an
+    /// engineer reads in a CNC record), SI for the rest. Both are powers of ten of SI, so the
+    /// file holds the exact decimal of each in-memory value.
+    pub fn display_unit(self) -> &'static str {
+        match self {
+            Quantity::Length => "mm",
+            Quantity::Velocity => "mm/s",
+            q => q.si_unit(),
+        }
+    }
+}
 
 /// A known axis signal: the `<signal>` of an `<axis>.<signal>` column.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
