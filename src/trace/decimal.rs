@@ -7,115 +7,147 @@
 //! ryu produced, which reads back as the original value. So `v` written in mm and read back
 //! is `v`, bit for bit, where `m_to_mm` then `mm_to_m` may be an ulp off.
 
-use std::fmt::Write as _;
-
-/// Significant digits kept from ryu's text: it never gives more than 17, zeros between them
-/// included; leading and trailing zeros go into the exponent.
-const MAX_DIGITS: usize = 24;
+/// Room for the digits of ryu's text, zeros included: at most 17 significant digits, and in
+/// its plain form up to 16 zeros before or after them.
+const MAX_DIGITS: usize = 40;
 /// Plain decimal (no exponent) when the leading digit's power of ten lies in this range,
 /// scientific notation outside: `0.000000001` and `123456789012345` are read more easily than
 /// with an exponent, `1e-20` and `1e300` are shorter with one.
 const PLAIN_EXP: std::ops::RangeInclusive<i32> = -9..=15;
 
-/// A finite decimal: `(-1)^neg × digits × 10^exp`, `digits` without leading or trailing zeros
-/// (empty for zero).
-struct Decimal {
+/// A finite decimal: `(-1)^neg × digits × 10^exp`, `digits` (ASCII) without leading or
+/// trailing zeros (empty for zero).
+struct Decimal<'a> {
     neg: bool,
-    digits: [u8; MAX_DIGITS],
-    n: usize,
+    digits: &'a [u8],
     exp: i32,
 }
 
-impl Decimal {
-    /// Parses ryu's output: `-?d+(.d+)?(e-?d+)?`. None for anything else (it never is).
-    fn parse(text: &str) -> Option<Decimal> {
-        let (neg, body) = match text.strip_prefix('-') {
-            Some(b) => (true, b),
-            None => (false, text),
-        };
-        let (mant, exp) = match body.split_once(['e', 'E']) {
-            Some((m, e)) => (m, e.parse::<i32>().ok()?),
-            None => (body, 0),
-        };
-        let mut d = Decimal {
-            neg,
-            digits: [0; MAX_DIGITS],
-            n: 0,
-            exp,
-        };
-        let (mut zeros, mut frac, mut seen_point) = (0i32, 0i32, false);
-        for c in mant.bytes() {
-            match c {
-                b'.' if !seen_point => seen_point = true,
-                b'0'..=b'9' => {
-                    if seen_point {
-                        frac += 1;
-                    }
-                    if c == b'0' {
-                        // Held back: leading zeros vanish, trailing ones go into the exponent.
-                        if d.n > 0 {
-                            zeros += 1;
-                        }
-                        continue;
-                    }
-                    for _ in 0..zeros {
-                        d.push(0)?;
-                    }
-                    zeros = 0;
-                    d.push(c - b'0')?;
-                }
-                _ => return None,
-            }
-        }
-        d.exp = d.exp.checked_add(zeros)?.checked_sub(frac)?;
-        Some(d)
+/// Parses ryu's output `-?d+(.d+)?(e-?d+)?` into `buf`: None for anything else (it never is).
+fn parse_ryu<'a>(text: &str, buf: &'a mut [u8; MAX_DIGITS]) -> Option<Decimal<'a>> {
+    let (neg, body) = match text.strip_prefix('-') {
+        Some(b) => (true, b),
+        None => (false, text),
+    };
+    let (mant, exp) = match body.split_once('e') {
+        Some((m, e)) => (m, parse_exp(e.as_bytes())?),
+        None => (body, 0),
+    };
+    let (int, frac) = mant.split_once('.').unwrap_or((mant, ""));
+    let (int, frac) = (int.as_bytes(), frac.as_bytes());
+    let n = int.len() + frac.len();
+    if !int.iter().chain(frac).all(u8::is_ascii_digit) {
+        return None;
     }
+    buf.get_mut(..int.len())?.copy_from_slice(int);
+    buf.get_mut(int.len()..n)?.copy_from_slice(frac);
+    let all = &buf[..n];
+    let start = all.iter().position(|&c| c != b'0').unwrap_or(n);
+    let end = all
+        .iter()
+        .rposition(|&c| c != b'0')
+        .map_or(start, |i| i + 1);
+    let exp = exp
+        .checked_sub(i32::try_from(frac.len()).ok()?)?
+        .checked_add(i32::try_from(n - end).ok()?)?;
+    Some(Decimal {
+        neg,
+        digits: &buf[start..end],
+        exp,
+    })
+}
 
-    fn push(&mut self, digit: u8) -> Option<()> {
-        *self.digits.get_mut(self.n)? = digit;
-        self.n += 1;
-        Some(())
-    }
-
-    /// Appends the text of this decimal times 10^shift: plain within [`PLAIN_EXP`], else
-    /// `d.ddde±x`.
-    fn write(&self, out: &mut String, shift: i32) {
+impl Decimal<'_> {
+    /// The text of this decimal times 10^shift: plain within [`PLAIN_EXP`], else
+    /// `d.ddde±x`; built on the stack (the writer calls it for every cell). None only if it
+    /// would not fit [`Ascii`], which ryu's at most 17 digits never reach.
+    fn write(&self, shift: i32) -> Option<Ascii> {
+        let mut out = Ascii::default();
         if self.neg {
-            out.push('-');
+            out.extend(b"-")?;
         }
-        let digits = &self.digits[..self.n];
+        let digits = self.digits;
         if digits.is_empty() {
-            out.push('0');
-            return;
+            out.extend(b"0")?;
+            return Some(out);
         }
-        let digit = |d: &u8| char::from(b'0' + d);
-        let n = self.n as i32;
+        let n = i32::try_from(digits.len()).ok()?;
         // Digits before the decimal point, and the power of ten of the leading digit.
         let point = n + self.exp + shift;
         let lead = point - 1;
         if PLAIN_EXP.contains(&lead) {
             if point <= 0 {
-                out.push_str("0.");
-                out.extend(std::iter::repeat_n('0', (-point) as usize));
-                out.extend(digits.iter().map(digit));
+                out.extend(b"0.")?;
+                out.zeros(-point)?;
+                out.extend(digits)?;
             } else if point >= n {
-                out.extend(digits.iter().map(digit));
-                out.extend(std::iter::repeat_n('0', (point - n) as usize));
+                out.extend(digits)?;
+                out.zeros(point - n)?;
             } else {
-                let (int, frac) = digits.split_at(point as usize);
-                out.extend(int.iter().map(digit));
-                out.push('.');
-                out.extend(frac.iter().map(digit));
+                let (int, frac) = digits.split_at(usize::try_from(point).ok()?);
+                out.extend(int)?;
+                out.extend(b".")?;
+                out.extend(frac)?;
             }
         } else {
-            out.push(digit(&digits[0]));
+            out.extend(&digits[..1])?;
             if digits.len() > 1 {
-                out.push('.');
-                out.extend(digits[1..].iter().map(digit));
+                out.extend(b".")?;
+                out.extend(&digits[1..])?;
             }
-            // Writing to a String cannot fail.
-            let _ = write!(out, "e{lead}");
+            out.extend(b"e")?;
+            out.int(lead)?;
         }
+        Some(out)
+    }
+}
+
+/// Longest cell text [`Decimal::write`] makes: a sign, `0.`, 8 zeros and 17 digits (28), or
+/// 17 digits and 16 zeros (33), or `d.` 16 digits `e-` and 10 exponent digits (31).
+const ASCII_CAP: usize = 48;
+
+/// A short ASCII text built on the stack.
+struct Ascii {
+    b: [u8; ASCII_CAP],
+    n: usize,
+}
+
+impl Default for Ascii {
+    fn default() -> Ascii {
+        Ascii {
+            b: [0; ASCII_CAP],
+            n: 0,
+        }
+    }
+}
+
+impl Ascii {
+    fn push(&mut self, c: u8) -> Option<()> {
+        *self.b.get_mut(self.n)? = c;
+        self.n += 1;
+        Some(())
+    }
+
+    fn extend(&mut self, s: &[u8]) -> Option<()> {
+        self.b.get_mut(self.n..self.n + s.len())?.copy_from_slice(s);
+        self.n += s.len();
+        Some(())
+    }
+
+    fn zeros(&mut self, k: i32) -> Option<()> {
+        let k = usize::try_from(k).ok()?;
+        self.b.get_mut(self.n..self.n + k)?.fill(b'0');
+        self.n += k;
+        Some(())
+    }
+
+    fn int(&mut self, v: i32) -> Option<()> {
+        let mut buf = [0u8; 11];
+        self.extend(int_text(v, &mut buf))
+    }
+
+    fn as_str(&self) -> Option<&str> {
+        std::str::from_utf8(&self.b[..self.n]).ok()
     }
 }
 
@@ -128,33 +160,154 @@ pub(crate) fn push_shifted(out: &mut String, ryu: &mut ryu::Buffer, v: f64, shif
         out.push_str(text);
         return;
     }
-    match Decimal::parse(text) {
-        Some(d) => d.write(out, shift),
-        // Not reached (ryu's grammar is the one parsed); the unshifted text is still a number.
-        None => out.push_str(text),
+    let shifted = plain_shifted(text, shift).or_else(|| {
+        let mut digits = [0u8; MAX_DIGITS];
+        parse_ryu(text, &mut digits).and_then(|d| d.write(shift))
+    });
+    match shifted.as_ref().and_then(Ascii::as_str) {
+        Some(t) => out.push_str(t),
+        // Not reached (ryu's grammar is the one parsed, its length bounded); the numeric
+        // conversion is still the right number, within an ulp.
+        None => out.push_str(ryu.format_finite(v * 10f64.powi(shift))),
     }
 }
 
-/// `text`, a decimal number `[+-]digits[.digits][e[+-]digits]`, times 10^`shift`, rewritten
-/// into `buf` by moving its exponent, for `f64::from_str` to round once. None when `text` is
-/// not of that form (inf, NaN, other text) or the exponent overflows: the caller parses it
-/// as it is.
-pub(crate) fn shift_text<'a>(text: &str, shift: i32, buf: &'a mut String) -> Option<&'a str> {
-    let (mant, exp) = match text.find(['e', 'E']) {
-        Some(i) => (&text[..i], text[i + 1..].parse::<i32>().ok()?),
-        None => (text, 0),
+/// The fast path of [`push_shifted`] for what a trace mostly holds: ryu's plain form
+/// `-?I.F` moved `shift` > 0 places right (m → mm), byte by byte on the stack. The same text
+/// as [`Decimal::write`]; None when that would not be plain (or the text is not this form).
+fn plain_shifted(text: &str, shift: i32) -> Option<Ascii> {
+    let k = usize::try_from(shift).ok().filter(|&k| k > 0)?;
+    let (neg, body) = match text.strip_prefix('-') {
+        Some(b) => (true, b.as_bytes()),
+        None => (false, text.as_bytes()),
     };
-    let body = mant.strip_prefix(['+', '-']).unwrap_or(mant);
-    let digits_only = body.bytes().all(|c| c.is_ascii_digit() || c == b'.');
-    if !digits_only || !body.bytes().any(|c| c.is_ascii_digit()) {
+    let mut dot = None;
+    for (i, &c) in body.iter().enumerate() {
+        match c {
+            b'.' => dot = Some(i),
+            b'0'..=b'9' => {}
+            _ => return None,
+        }
+    }
+    let dot = dot?;
+    let (int, frac) = (&body[..dot], &body[dot + 1..]);
+    // ryu writes an integer as `I.0`; otherwise its fraction has no trailing zero.
+    let frac = if frac == b"0" { &frac[..0] } else { frac };
+    if frac.last() == Some(&b'0') {
         return None;
     }
+    let mut out = Ascii::default();
+    if neg {
+        out.push(b'-')?;
+    }
+    // The fraction digit at `j`, or a zero past its end (the point moves past it).
+    let f = |j: usize| frac.get(j).copied().unwrap_or(b'0');
+    if int != b"0" {
+        // ryu's integer part has no leading zero: D = int ++ frac, the point after int + k.
+        if int.len() + k > 16 || int.first() == Some(&b'0') {
+            return None;
+        }
+        int.iter().try_for_each(|&c| out.push(c))?;
+        (0..k).try_for_each(|j| out.push(f(j)))?;
+    } else {
+        let z = frac.iter().take_while(|&&c| c == b'0').count();
+        if z == frac.len() {
+            out.push(b'0')?;
+            return Some(out);
+        }
+        if z >= k {
+            // The leading digit's power of ten is k − z − 1: plain from 10^-9 on.
+            if z - k > 8 {
+                return None;
+            }
+            out.push(b'0')?;
+            out.push(b'.')?;
+            (k..z).try_for_each(|_| out.push(b'0'))?;
+            return frac[z..]
+                .iter()
+                .try_for_each(|&c| out.push(c))
+                .map(|()| out);
+        }
+        (z..k).try_for_each(|j| out.push(f(j)))?;
+    }
+    if frac.len() > k {
+        out.push(b'.')?;
+        frac[k..].iter().try_for_each(|&c| out.push(c))?;
+    }
+    Some(out)
+}
+
+/// `text` times 10^`shift`, for `f64::from_str` to round once: its exponent (after the first
+/// `e`/`E`, 0 without one) moved by `shift`, rewritten into `buf`. The result parses exactly
+/// when `text` is a decimal number `[+-]digits[.digits][e[+-]digits]`; for anything else
+/// (inf, NaN, other text) it does not parse either, and the caller parses `text` itself for
+/// the right message. None when the exponent is not an integer of at most 9 digits or
+/// overflows. No validation pass and no allocation once `buf` has grown: the reader calls it
+/// for every cell.
+pub(crate) fn shift_text<'a>(text: &str, shift: i32, buf: &'a mut String) -> Option<&'a str> {
+    let bytes = text.as_bytes();
+    let e_at = bytes
+        .iter()
+        .position(|&c| c == b'e' || c == b'E')
+        .unwrap_or(bytes.len());
+    let exp = match bytes.get(e_at + 1..) {
+        Some(e) => parse_exp(e)?,
+        None => 0,
+    };
     let exp = exp.checked_add(shift)?;
     buf.clear();
-    buf.push_str(mant);
-    // Writing to a String cannot fail.
-    let _ = write!(buf, "e{exp}");
+    buf.push_str(&text[..e_at]);
+    buf.push('e');
+    push_int(buf, exp);
     Some(buf.as_str())
+}
+
+/// An exponent `[+-]digits` (at least one digit, at most 9: any larger one overflows a
+/// double whatever the mantissa, and is left to the ordinary parse).
+fn parse_exp(e: &[u8]) -> Option<i32> {
+    let (neg, digits) = match e.first() {
+        Some(b'-') => (true, &e[1..]),
+        Some(b'+') => (false, &e[1..]),
+        _ => (false, e),
+    };
+    if digits.is_empty() || digits.len() > 9 {
+        return None;
+    }
+    let mut v: i32 = 0;
+    for &c in digits {
+        if !c.is_ascii_digit() {
+            return None;
+        }
+        v = v * 10 + i32::from(c - b'0');
+    }
+    Some(if neg { -v } else { v })
+}
+
+/// The decimal text of `v`, in `buf`.
+fn int_text(v: i32, buf: &mut [u8; 11]) -> &[u8] {
+    let mut u = v.unsigned_abs();
+    let mut i = buf.len();
+    loop {
+        i -= 1;
+        buf[i] = b'0' + (u % 10) as u8;
+        u /= 10;
+        if u == 0 {
+            break;
+        }
+    }
+    if v < 0 {
+        i -= 1;
+        buf[i] = b'-';
+    }
+    &buf[i..]
+}
+
+/// Appends the decimal text of `v`.
+fn push_int(out: &mut String, v: i32) {
+    let mut buf = [0u8; 11];
+    for &c in int_text(v, &mut buf) {
+        out.push(char::from(c));
+    }
 }
 
 #[cfg(test)]
@@ -182,17 +335,74 @@ mod tests {
         assert_eq!(shifted(0.1 + 0.2, 3), "300.00000000000004");
     }
 
+    /// The general path: every value through parse_ryu and Decimal::write.
+    fn general(v: f64, shift: i32) -> String {
+        let mut ryu = ryu::Buffer::new();
+        let mut digits = [0u8; MAX_DIGITS];
+        parse_ryu(ryu.format_finite(v), &mut digits)
+            .and_then(|d| d.write(shift))
+            .and_then(|a| a.as_str().map(str::to_owned))
+            .unwrap_or_default()
+    }
+
+    #[test]
+    fn the_fast_path_writes_what_the_general_one_does() {
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut fast = 0;
+        for i in 0..200_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let v = match i % 4 {
+                0 => f64::from_bits(x),
+                1 => (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0,
+                2 => ((x >> 40) as f64 - 8.0e6) / 1.0e4,
+                _ => (x as f64 / u64::MAX as f64) * 10f64.powi((i % 40) - 20),
+            };
+            if !v.is_finite() {
+                continue;
+            }
+            for shift in [3, 6] {
+                let mut ryu = ryu::Buffer::new();
+                if let Some(a) = plain_shifted(ryu.format_finite(v), shift) {
+                    fast += 1;
+                    assert_eq!(
+                        a.as_str(),
+                        Some(general(v, shift).as_str()),
+                        "{v:e} << {shift}"
+                    );
+                }
+            }
+        }
+        assert!(fast > 100_000, "fast path taken {fast} times");
+    }
+
     #[test]
     fn rewrites_the_exponent_of_a_cell() {
         let mut buf = String::new();
         assert_eq!(shift_text("1.5", -3, &mut buf), Some("1.5e-3"));
         assert_eq!(shift_text("-2E+4", -3, &mut buf), Some("-2e1"));
         assert_eq!(shift_text("+.5e-2", -6, &mut buf), Some("+.5e-8"));
-        assert_eq!(shift_text("inf", -3, &mut buf), None);
-        assert_eq!(shift_text("NaN", -3, &mut buf), None);
+        // Not numbers: the rewritten text does not parse either.
+        for bad in [
+            "inf", "NaN", "infinity", ".", "0x10", "+", "1.2.3", "abc", "",
+        ] {
+            let t = shift_text(bad, -3, &mut buf).map(str::to_owned);
+            assert!(t.is_none_or(|t| t.parse::<f64>().is_err()), "{bad}");
+        }
         assert_eq!(shift_text("1e", -3, &mut buf), None);
-        assert_eq!(shift_text(".", -3, &mut buf), None);
         assert_eq!(shift_text("1e2147483647", 1, &mut buf), None);
-        assert_eq!(shift_text("0x10", -3, &mut buf), None);
+        assert_eq!(shift_text("1e999999999", -3, &mut buf), Some("1e999999996"));
+        assert_eq!(shift_text("1e-5", 3, &mut buf), Some("1e-2"));
+        assert_eq!(shift_text("1e--5", 3, &mut buf), None);
+        assert_eq!(shift_text("1.5e3.0", 3, &mut buf), None);
+        assert_eq!(shift_text("1e5e3", 3, &mut buf), None);
+        assert_eq!(shift_text("12", 0, &mut buf), Some("12e0"));
+        assert_eq!(shift_text("1e-2147483645", -3, &mut buf), None);
+        assert_eq!(shift_text("5e-999999999", i32::MIN + 5, &mut buf), None);
+        let mut b = [0u8; 11];
+        assert_eq!(int_text(i32::MIN, &mut b), b"-2147483648");
+        assert_eq!(int_text(0, &mut b), b"0");
+        assert_eq!(int_text(-7, &mut b), b"-7");
     }
 }

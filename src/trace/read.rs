@@ -505,8 +505,10 @@ fn cell_value(cell: Option<&[u8]>, c: &Col, is_t: bool, buf: &mut String) -> Res
     let not_a_number = || format!("{}: '{}' is not a number", c.label, shown());
     let v: f64 = match c.unit.pow10 {
         Some(0) => text.parse().map_err(|_| not_a_number())?,
-        Some(k) => match decimal::shift_text(text, k, buf) {
-            Some(t) => t.parse().map_err(|_| not_a_number())?,
+        // The rewritten text parses exactly when the cell is a decimal number; anything else
+        // (inf, text) is parsed as written, for its own message.
+        Some(k) => match decimal::shift_text(text, k, buf).and_then(|t| t.parse().ok()) {
+            Some(v) => v,
             None => (c.unit.to_si)(text.parse().map_err(|_| not_a_number())?),
         },
         None => (c.unit.to_si)(text.parse().map_err(|_| not_a_number())?),
