@@ -2,10 +2,11 @@
 //! and the peak error after each reversal of the command, split by direction.
 
 use crate::preset::comp::Reversal as Direction;
-use crate::trace::Trace;
+use crate::trace::{AxisSignal, Trace};
+use crate::units::{m_to_mm, m_to_um, mm_to_um};
 
-/// Increments of the command below this (mm) are standstill, not motion.
-const MOVE_EPS_MM: f64 = 1e-9;
+/// Increments of the command below this (m) are standstill, not motion: a picometre.
+const MOVE_EPS_M: f64 = 1e-12;
 /// Longest window after a reversal in which its peak error is looked for.
 const REVERSAL_WINDOW_S: f64 = 0.25;
 
@@ -47,7 +48,7 @@ pub struct AxisSummary {
     pub reversals: Vec<Reversal>,
 }
 
-/// Finds reversals of `cmd`: sign changes of its increments, standstill keeping the last
+/// Finds reversals of `cmd` (m, as a trace holds it): sign changes of its increments, standstill keeping the last
 /// direction. Returns (index of the first sample moving the new way, +1 for −→+ / −1 for
 /// +→−); the turning point is the sample before it.
 pub fn reversals(cmd: &[f64]) -> Vec<(usize, f64)> {
@@ -55,7 +56,7 @@ pub fn reversals(cmd: &[f64]) -> Vec<(usize, f64)> {
     let mut dir = 0.0;
     for i in 1..cmd.len() {
         let d = cmd[i] - cmd[i - 1];
-        if d.abs() <= MOVE_EPS_MM || !d.is_finite() {
+        if d.abs() <= MOVE_EPS_M || !d.is_finite() {
             continue;
         }
         let s = d.signum();
@@ -77,25 +78,27 @@ fn max_rms(v: impl Iterator<Item = f64>) -> (f64, f64) {
     (max, if n > 0 { (sq / n as f64).sqrt() } else { 0.0 })
 }
 
-/// Error figures for every axis of `trace` that has both `cmd` and `pos`.
+/// Error figures for every axis of `trace` that has both `cmd` and `pos`. The trace holds
+/// m; the figures are in mm, as an engineer reads them.
 pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
     let t = trace.t();
+    let mm = |(max, rms): (f64, f64)| (m_to_mm(max), m_to_mm(rms));
     trace
         .axes()
         .into_iter()
         .filter_map(|axis| {
-            let cmd = trace.values(&format!("{axis}.cmd"))?;
-            let pos = trace.values(&format!("{axis}.pos"))?;
+            let cmd = trace.axis_values(&axis, AxisSignal::Cmd)?;
+            let pos = trace.axis_values(&axis, AxisSignal::Pos)?;
             let err: Vec<f64> = cmd.iter().zip(pos).map(|(c, p)| c - p).collect();
-            let (max_err_mm, rms_err_mm) = max_rms(err.iter().copied());
-            let (max_ferr_mm, rms_ferr_mm) = match trace.values(&format!("{axis}.ferr")) {
-                Some(f) => max_rms(f.iter().copied()),
+            let (max_err_mm, rms_err_mm) = mm(max_rms(err.iter().copied()));
+            let (max_ferr_mm, rms_ferr_mm) = match trace.axis_values(&axis, AxisSignal::Ferr) {
+                Some(f) => mm(max_rms(f.iter().copied())),
                 None => (max_err_mm, rms_err_mm),
             };
             let revs = reversals(cmd);
             let first_move = cmd
                 .windows(2)
-                .position(|w| (w[1] - w[0]).abs() > MOVE_EPS_MM)
+                .position(|w| (w[1] - w[0]).abs() > MOVE_EPS_M)
                 .unwrap_or(0);
             let reversals = revs
                 .iter()
@@ -120,15 +123,15 @@ pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
                         .fold(0.0, f64::max);
                     Reversal {
                         t_s: t0,
-                        pos_mm: cmd[i.saturating_sub(1)],
+                        pos_mm: m_to_mm(cmd[i.saturating_sub(1)]),
                         direction: if s > 0.0 {
                             Direction::MinusToPlus
                         } else {
                             Direction::PlusToMinus
                         },
-                        peak_err_mm: peak,
-                        settled_err_mm: window().last().map_or(0.0, |k| err[k] - e0),
-                        peak_abs_err_mm: peak_abs,
+                        peak_err_mm: m_to_mm(peak),
+                        settled_err_mm: m_to_mm(window().last().map_or(0.0, |k| err[k] - e0)),
+                        peak_abs_err_mm: m_to_mm(peak_abs),
                     }
                 })
                 .collect();
@@ -155,15 +158,15 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
         s += &format!(
             "axis {}: following error max {:.4} µm, rms {:.4} µm; position error (cmd − actual) max {:.4} µm, rms {:.4} µm\n",
             a.axis,
-            a.max_ferr_mm * 1e3,
-            a.rms_ferr_mm * 1e3,
-            a.max_err_mm * 1e3,
-            a.rms_err_mm * 1e3
+            mm_to_um(a.max_ferr_mm),
+            mm_to_um(a.rms_ferr_mm),
+            mm_to_um(a.max_err_mm),
+            mm_to_um(a.rms_err_mm)
         );
-        if let Some(th) = trace.values(&format!("{}.thermal", a.axis))
+        if let Some(th) = trace.axis_values(&a.axis, AxisSignal::Thermal)
             && th.iter().any(|&x| x != 0.0)
         {
-            let comp = trace.values(&format!("{}.thermal_comp", a.axis));
+            let comp = trace.axis_values(&a.axis, AxisSignal::ThermalComp);
             let resid = th
                 .iter()
                 .enumerate()
@@ -171,8 +174,8 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
             let (max, rms) = max_rms(resid);
             s += &format!(
                 "  thermal residual (growth − correction): max {:.3} µm, rms {:.3} µm\n",
-                max * 1e3,
-                rms * 1e3
+                m_to_um(max),
+                m_to_um(rms)
             );
         }
         if a.reversals.is_empty() {
@@ -189,8 +192,8 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
             s += &format!(
                 "  {} reversals: largest peak error change +→− {:.4} µm, −→+ {:.4} µm\n",
                 a.reversals.len(),
-                dn * 1e3,
-                up * 1e3
+                mm_to_um(dn),
+                mm_to_um(up)
             );
         }
         for r in a.reversals.iter().filter(|_| a.reversals.len() <= 12) {
@@ -200,9 +203,9 @@ pub fn format_summary(trace: &Trace, sums: &[AxisSummary]) -> String {
                 r.t_s,
                 a.axis,
                 r.pos_mm,
-                r.peak_err_mm * 1e3,
-                r.settled_err_mm * 1e3,
-                r.peak_abs_err_mm * 1e3
+                mm_to_um(r.peak_err_mm),
+                mm_to_um(r.settled_err_mm),
+                mm_to_um(r.peak_abs_err_mm)
             );
         }
     }

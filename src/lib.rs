@@ -23,6 +23,7 @@ pub mod nc;
 pub mod plant;
 pub mod preset;
 pub mod servo;
+pub mod signal;
 pub mod table;
 pub mod trace;
 pub mod units;

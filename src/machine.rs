@@ -17,8 +17,8 @@ use crate::nc::Channel;
 use crate::nc::program::{self, ProgramError};
 use crate::plant::{Beam, Start};
 use crate::preset::{FieldError, LoadedPreset, Mode, PosSource, Preset, PresetError};
-use crate::trace::Trace;
-use crate::units::{m_to_mm, mm_to_m};
+use crate::trace::{AxisSignal, Trace};
+use crate::units::mm_to_m;
 
 /// Why a machine could not be built or changed.
 #[derive(Debug, thiserror::Error)]
@@ -165,26 +165,6 @@ struct Recorder {
     comp_cols: Vec<usize>,
     comp_vals: Vec<f64>,
 }
-
-/// The per-axis trace signals, in column order, with their units.
-pub const AXIS_SIGNALS: &[(&str, &str)] = &[
-    ("cmd", "mm"),
-    ("cmd_comp", "mm"),
-    ("comp", "mm"),
-    ("motor_pos", "mm"),
-    ("pos", "mm"),
-    ("err", "mm"),
-    ("ferr", "mm"),
-    ("vel", "mm/s"),
-    ("torque_cmd", "N*m"),
-    ("torque", "N*m"),
-    ("force", "N"),
-    ("friction", "N"),
-    ("gap", "mm"),
-    ("thermal", "mm"),
-    ("lead_err", "mm"),
-    ("sag", "mm"),
-];
 
 /// The whole simulated machine: NC channels, position compensations, one [`AxisLoop`] per
 /// axis, the crossbeam, and the trace.
@@ -507,8 +487,8 @@ impl Machine {
         let mut axis_cols = Vec::new();
         for a in &self.axes {
             axis_cols.push(tr.signals.len());
-            for (s, u) in AXIS_SIGNALS {
-                tr.add_signal(&format!("{}.{s}", a.name), u);
+            for s in AxisSignal::RECORDED {
+                tr.add_signal(&s.column(&a.name), s.si_unit());
             }
         }
         let temp_cols = self
@@ -538,7 +518,7 @@ impl Machine {
                 } else {
                     format!("{}.{}", s.axis, s.signal)
                 };
-                tr.add_signal(&name, &s.unit)
+                tr.add_signal(&name, s.quantity.si_unit())
             })
             .collect();
         self.rec = Some(Recorder {
@@ -818,25 +798,27 @@ impl Machine {
             let s = a.axis_loop.sample();
             let o = &s.plant;
             let fpt = a.axis_loop.force_per_torque();
-            let vals = [
-                m_to_mm(s.cmd_raw_m),
-                m_to_mm(s.cmd_m),
-                m_to_mm(s.cmd_nc_m - s.cmd_raw_m),
-                m_to_mm(o.motor_pos_m),
-                m_to_mm(a.sample_pos_m),
-                m_to_mm(s.cmd_raw_m - a.sample_pos_m),
-                m_to_mm(s.servo.ferr_m),
-                m_to_mm(o.vel_mps),
-                s.servo.force_cmd_n / fpt,
-                s.servo.force_n / fpt,
-                s.servo.force_n,
-                o.friction_n,
-                m_to_mm(o.gap_m),
-                m_to_mm(o.thermal_m),
-                m_to_mm(o.lead_err_m),
-                m_to_mm(a.sample_pos_m - o.pos_m),
-            ];
-            for (i, v) in vals.into_iter().enumerate() {
+            for (i, sig) in AxisSignal::RECORDED.into_iter().enumerate() {
+                let v = match sig {
+                    AxisSignal::Cmd => s.cmd_raw_m,
+                    AxisSignal::CmdComp => s.cmd_m,
+                    AxisSignal::Comp => s.cmd_nc_m - s.cmd_raw_m,
+                    AxisSignal::MotorPos => o.motor_pos_m,
+                    AxisSignal::Pos => a.sample_pos_m,
+                    AxisSignal::Err => s.cmd_raw_m - a.sample_pos_m,
+                    AxisSignal::Ferr => s.servo.ferr_m,
+                    AxisSignal::Vel => o.vel_mps,
+                    AxisSignal::TorqueCmd => s.servo.force_cmd_n / fpt,
+                    AxisSignal::Torque => s.servo.force_n / fpt,
+                    AxisSignal::Force => s.servo.force_n,
+                    AxisSignal::Friction => o.friction_n,
+                    AxisSignal::Gap => o.gap_m,
+                    AxisSignal::Thermal => o.thermal_m,
+                    AxisSignal::LeadErr => o.lead_err_m,
+                    AxisSignal::Sag => a.sample_pos_m - o.pos_m,
+                    // Not recorded per axis by the machine (compensations add theirs).
+                    _ => f64::NAN,
+                };
                 tr.signals[base + i].data.push(v);
             }
         }

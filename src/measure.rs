@@ -7,7 +7,8 @@
 use crate::comp::thermal::{self, Step1, Thermal};
 use crate::machine::{Machine, MachineError};
 use crate::preset::Preset;
-use crate::units::{m_to_um, mm_to_m, mm_to_um};
+use crate::trace::AxisSignal;
+use crate::units::{m_to_um, mm_to_m};
 
 /// The preset with every compensation switched off and a plain scenario (no PLC events,
 /// no fixed duration, every sample traced), as a measuring cycle needs it.
@@ -119,14 +120,16 @@ pub fn backlash_um(p: &Preset, axis_name: &str) -> Result<f64, MachineError> {
     let m = run_on_channel(&q, i, &prog)?;
     let tr = &m.trace;
     let cmd = tr
-        .values(&format!("{axis_name}.cmd"))
+        .axis_values(axis_name, AxisSignal::Cmd)
         .ok_or_else(|| MachineError::Structure("trace has no cmd".into()))?;
     let pos = tr
-        .values(&format!("{axis_name}.pos"))
+        .axis_values(axis_name, AxisSignal::Pos)
         .ok_or_else(|| MachineError::Structure("trace has no pos".into()))?;
-    let ends = dwell_ends(cmd, &[x0, x0]);
+    // The program's X word converts to m as the NC converts it, so the dwell matches exactly.
+    let x0_m = mm_to_m(x0);
+    let ends = dwell_ends(cmd, &[x0_m, x0_m]);
     match (ends[0], ends[1]) {
-        (Some(k1), Some(k2)) => Ok(mm_to_um(pos[k2] - pos[k1])),
+        (Some(k1), Some(k2)) => Ok(m_to_um(pos[k2] - pos[k1])),
         _ => Err(MachineError::Structure(
             "the reversal test did not reach its point".into(),
         )),
@@ -168,13 +171,18 @@ pub fn sag_table(
     let m = run_on_channel(&q, ib, &prog)?;
     let tr = &m.trace;
     let missing = || MachineError::Structure("trace lacks the measured signals".into());
-    let cmd = tr.values(&format!("{base_axis}.cmd")).ok_or_else(missing)?;
-    let err = tr.values(&format!("{comp_axis}.err")).ok_or_else(missing)?;
-    let ends = dwell_ends(cmd, &xs);
+    let cmd = tr
+        .axis_values(base_axis, AxisSignal::Cmd)
+        .ok_or_else(missing)?;
+    let err = tr
+        .axis_values(comp_axis, AxisSignal::Err)
+        .ok_or_else(missing)?;
+    let xs_m: Vec<f64> = xs.iter().map(|&x| mm_to_m(x)).collect();
+    let ends = dwell_ends(cmd, &xs_m);
     xs.iter()
         .zip(ends)
         .map(|(&x, e)| {
-            e.map(|k| (x, mm_to_um(err[k]))).ok_or_else(|| {
+            e.map(|k| (x, m_to_um(err[k]))).ok_or_else(|| {
                 MachineError::Structure(format!("the sag run did not reach X = {x}"))
             })
         })

@@ -1,9 +1,11 @@
 //! Traces: a columnar buffer of samples, each signal named with its unit, and the CSV format
 //! of `shared/TRACE_FORMAT.md` shared by simulated and measured data.
 //!
-//! In memory every signal is held in one canonical unit per quantity (mm, s, mm/s, N, N*m,
-//! A, degC), whatever unit the file used, so that code comparing a simulated and a measured
-//! trace never converts. A missing sample ("not measured at this instant", an empty cell)
+//! In memory every signal is held in SI (m, s, m/s, N, N*m, A, degC), whatever unit the file
+//! used, so that code comparing a simulated and a measured trace, or feeding a record to the
+//! model, never converts. Files are written in display units (mm, mm/s; SI for the rest) by
+//! shifting the decimal point of the shortest round-trip text, and read back by shifting it
+//! again, so a trace written and read is the same trace bit for bit. A missing sample ("not measured at this instant", an empty cell)
 //! is held as NaN and written back as an empty cell; NaN never comes from a file.
 //!
 //! Reading checks what the format promises: a unit that measures what its signal means
@@ -14,12 +16,14 @@
 //! trace at most [`MAX_TRACE_ROWS`] rows and [`MAX_TRACE_VALUES`] values, so no file makes it
 //! allocate beyond about 1 GB.
 
-use std::io::Write;
-use std::path::Path;
-
-use crate::units;
-
+mod decimal;
 mod read;
+mod unit;
+mod write;
+
+pub use crate::signal::{AxisSignal, Quantity};
+pub use unit::{UNITS, Unit, check_unit, display_unit_of, expected_quantities, unit};
+pub use write::push_value;
 
 /// Most data rows a trace may have: 20 M rows are 5.5 h at 1 kHz, 42 min at 8 kHz.
 pub const MAX_TRACE_ROWS: usize = 20_000_000;
@@ -154,246 +158,6 @@ fn quote(s: &str, max: usize) -> String {
     }
 }
 
-/// What a unit measures. A signal's unit must measure what the signal means: `x.pos[mm/s]`
-/// is a velocity where a length is meant, and is refused rather than silently mis-scaled.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Quantity {
-    /// m, mm, um.
-    Length,
-    /// s, ms.
-    Time,
-    /// m/s, mm/s, mm/min.
-    Velocity,
-    /// N.
-    Force,
-    /// N*m.
-    Torque,
-    /// A.
-    Current,
-    /// degC.
-    Temperature,
-    /// No unit: counts, modes, ratios.
-    Plain,
-}
-
-impl Quantity {
-    /// The name used in messages.
-    pub fn name(self) -> &'static str {
-        match self {
-            Quantity::Length => "a length",
-            Quantity::Time => "a time",
-            Quantity::Velocity => "a velocity",
-            Quantity::Force => "a force",
-            Quantity::Torque => "a torque",
-            Quantity::Current => "a current",
-            Quantity::Temperature => "a temperature",
-            Quantity::Plain => "a plain number",
-        }
-    }
-}
-
-/// An accepted unit: what it measures, the canonical unit a trace holds it in, and the
-/// conversion into that unit (a named helper from [`crate::units`], never a bare factor).
-#[derive(Debug, Clone, Copy)]
-pub struct Unit {
-    /// As written in a header, e.g. `mm/min`.
-    pub name: &'static str,
-    /// What it measures.
-    pub quantity: Quantity,
-    /// The unit held in memory, e.g. `mm/s`.
-    pub canonical: &'static str,
-    /// Value in this unit → value in the canonical unit.
-    pub to_canonical: fn(f64) -> f64,
-}
-
-fn same(v: f64) -> f64 {
-    v
-}
-
-/// Every unit TRACE_FORMAT accepts.
-pub const UNITS: &[Unit] = &[
-    Unit {
-        name: "m",
-        quantity: Quantity::Length,
-        canonical: "mm",
-        to_canonical: units::m_to_mm,
-    },
-    Unit {
-        name: "mm",
-        quantity: Quantity::Length,
-        canonical: "mm",
-        to_canonical: same,
-    },
-    Unit {
-        name: "um",
-        quantity: Quantity::Length,
-        canonical: "mm",
-        to_canonical: units::um_to_mm,
-    },
-    Unit {
-        name: "s",
-        quantity: Quantity::Time,
-        canonical: "s",
-        to_canonical: same,
-    },
-    Unit {
-        name: "ms",
-        quantity: Quantity::Time,
-        canonical: "s",
-        to_canonical: units::ms_to_s,
-    },
-    Unit {
-        name: "m/s",
-        quantity: Quantity::Velocity,
-        canonical: "mm/s",
-        to_canonical: units::m_per_s_to_mm_per_s,
-    },
-    Unit {
-        name: "mm/s",
-        quantity: Quantity::Velocity,
-        canonical: "mm/s",
-        to_canonical: same,
-    },
-    Unit {
-        name: "mm/min",
-        quantity: Quantity::Velocity,
-        canonical: "mm/s",
-        to_canonical: units::mm_per_min_to_mm_per_s,
-    },
-    Unit {
-        name: "N",
-        quantity: Quantity::Force,
-        canonical: "N",
-        to_canonical: same,
-    },
-    Unit {
-        name: "N*m",
-        quantity: Quantity::Torque,
-        canonical: "N*m",
-        to_canonical: same,
-    },
-    Unit {
-        name: "A",
-        quantity: Quantity::Current,
-        canonical: "A",
-        to_canonical: same,
-    },
-    Unit {
-        name: "degC",
-        quantity: Quantity::Temperature,
-        canonical: "degC",
-        to_canonical: same,
-    },
-    Unit {
-        name: "",
-        quantity: Quantity::Plain,
-        canonical: "",
-        to_canonical: same,
-    },
-];
-
-/// The accepted unit called `name`, if any.
-pub fn unit(name: &str) -> Option<&'static Unit> {
-    UNITS.iter().find(|u| u.name == name)
-}
-
-/// The units of one quantity, for messages: "m, mm, um".
-fn unit_names(q: Quantity) -> String {
-    UNITS
-        .iter()
-        .filter(|u| u.quantity == q)
-        .map(|u| if u.name.is_empty() { "none" } else { u.name })
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-/// The accepted units, for messages.
-fn all_unit_names() -> String {
-    UNITS
-        .iter()
-        .filter(|u| !u.name.is_empty())
-        .map(|u| u.name)
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-use Quantity::{Current, Force, Length, Plain, Temperature, Time, Torque, Velocity};
-
-/// The known axis signals (`<axis>.<signal>`) and what their unit must measure. The
-/// quadrant compensation is injected as a torque, a velocity or a position, so it may be any
-/// of the three.
-const AXIS_SIGNALS: &[(&str, &[Quantity])] = &[
-    ("cmd", &[Length]),
-    ("cmd_comp", &[Length]),
-    ("comp", &[Length]),
-    ("motor_pos", &[Length]),
-    ("pos", &[Length]),
-    ("err", &[Length]),
-    ("ferr", &[Length]),
-    ("vel", &[Velocity]),
-    ("torque_cmd", &[Torque]),
-    ("torque", &[Torque]),
-    ("force", &[Force]),
-    ("friction", &[Force]),
-    ("gap", &[Length]),
-    ("thermal", &[Length]),
-    ("lead_err", &[Length]),
-    ("sag", &[Length]),
-    ("current", &[Current]),
-    ("backlash_comp", &[Length]),
-    ("quadrant_comp", &[Torque, Velocity, Length]),
-    ("thermal_comp", &[Length]),
-    ("cross_comp", &[Length]),
-    ("meas", &[Length]),
-];
-
-/// What the unit of signal `name` must measure: `t` a time, `mode` (and `mode.<channel>`)
-/// nothing, `temp.<name>` a temperature, `<axis>.<signal>` per the table of known axis
-/// signals. None for a signal this table does not know, which keeps any accepted unit.
-pub fn expected_quantities(name: &str) -> Option<&'static [Quantity]> {
-    if name == "t" {
-        return Some(&[Time]);
-    }
-    if name == "mode" || name.starts_with("mode.") {
-        return Some(&[Plain]);
-    }
-    if name.starts_with("temp.") {
-        return Some(&[Temperature]);
-    }
-    let (_, signal) = name.split_once('.')?;
-    AXIS_SIGNALS
-        .iter()
-        .find(|(s, _)| *s == signal)
-        .map(|(_, q)| *q)
-}
-
-/// Checks that unit `unit_name` is accepted and fits signal `name`; the reason when not.
-pub fn check_unit(name: &str, unit_name: &str) -> Result<&'static Unit, String> {
-    let u = unit(unit_name).ok_or_else(|| {
-        format!(
-            "unit '{}' is not accepted ({})",
-            quote(unit_name, QUOTE_CHARS),
-            all_unit_names()
-        )
-    })?;
-    match expected_quantities(name) {
-        Some(qs) if !qs.contains(&u.quantity) => {
-            let want: Vec<String> = qs
-                .iter()
-                .map(|q| format!("{} ({})", q.name(), unit_names(*q)))
-                .collect();
-            Err(format!(
-                "{} is {}, not {} ('{}')",
-                quote(name, QUOTE_CHARS),
-                want.join(" or "),
-                u.quantity.name(),
-                u.name
-            ))
-        }
-        _ => Ok(u),
-    }
-}
-
 /// Splits `x.cmd[mm]` into (`x.cmd`, `mm`); a name without brackets has unit "".
 pub fn split_header(h: &str) -> Option<(&str, &str)> {
     let h = h.trim();
@@ -404,12 +168,12 @@ pub fn split_header(h: &str) -> Option<(&str, &str)> {
     }
 }
 
-/// One recorded signal: its samples in the canonical unit of its quantity.
+/// One recorded signal: its samples in the SI unit of its quantity.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Signal {
     /// `t`, `mode`, `x.cmd`, `temp.x_screw`, …
     pub name: String,
-    /// Canonical unit: mm, s, mm/s, N, N*m, A, degC, or "" for a plain number.
+    /// SI unit: m, s, m/s, N, N*m, A, degC, or "" for a plain number.
     pub unit: String,
     /// One value per row; NaN where the row did not measure it.
     pub data: Vec<f64>,
@@ -537,9 +301,20 @@ impl Trace {
         self.signals.iter().find(|s| s.name == name)
     }
 
-    /// The samples of signal `name`, in its canonical unit.
+    /// The samples of signal `name`, in SI.
     pub fn values(&self, name: &str) -> Option<&[f64]> {
         self.signal(name).map(|s| s.data.as_slice())
+    }
+
+    /// The samples of axis signal `sig` of axis `axis` (column `<axis>.<sig>`), in SI; found
+    /// without building the column name.
+    pub fn axis_values(&self, axis: &str, sig: AxisSignal) -> Option<&[f64]> {
+        self.signals
+            .iter()
+            .find(|s| {
+                s.name.strip_prefix(axis).and_then(|r| r.strip_prefix('.')) == Some(sig.name())
+            })
+            .map(|s| s.data.as_slice())
     }
 
     /// The value of metadata `key`, if the file had it.
@@ -555,7 +330,7 @@ impl Trace {
         self.signals
             .iter()
             .filter_map(|s| s.name.strip_suffix(".cmd"))
-            .filter(|a| self.signal(&format!("{a}.pos")).is_some())
+            .filter(|a| self.axis_values(a, AxisSignal::Pos).is_some())
             .map(str::to_owned)
             .collect()
     }
@@ -565,44 +340,5 @@ impl Trace {
         for s in &mut self.signals {
             s.data.clear();
         }
-    }
-
-    /// Writes the trace as TRACE_FORMAT CSV: metadata lines, header, one row per sample,
-    /// shortest round-trip numbers, missing samples as empty cells.
-    pub fn write_csv_to<W: Write>(&self, mut w: W) -> std::io::Result<()> {
-        for (k, v) in &self.meta {
-            writeln!(w, "# {k}: {v}")?;
-        }
-        let mut cw = csv::Writer::from_writer(w);
-        let header: Vec<String> = self
-            .signals
-            .iter()
-            .map(|s| format!("{}[{}]", s.name, s.unit))
-            .collect();
-        cw.write_record(&header)?;
-        let mut buf = ryu::Buffer::new();
-        let mut row: Vec<String> = vec![String::new(); self.signals.len()];
-        for i in 0..self.len() {
-            for (cell, s) in row.iter_mut().zip(&self.signals) {
-                cell.clear();
-                let v = s.data[i];
-                if v.is_finite() {
-                    cell.push_str(buf.format_finite(v));
-                }
-            }
-            cw.write_record(&row)?;
-        }
-        cw.flush()?;
-        Ok(())
-    }
-
-    /// Writes the CSV atomically: a crash mid-write never leaves a half file behind.
-    pub fn write_csv(&self, path: &Path) -> Result<(), TraceError> {
-        crate::fsutil::write_atomic_with(path, |w| self.write_csv_to(w)).map_err(|source| {
-            TraceError::Write {
-                file: path.display().to_string(),
-                source,
-            }
-        })
     }
 }

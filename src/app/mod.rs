@@ -21,6 +21,8 @@ use axisbench::analysis;
 use axisbench::export::{self, Target};
 use axisbench::preset::comp::Reversal;
 use axisbench::preset::{self, Preset, SHIPPED_PRESETS};
+use axisbench::trace::AxisSignal;
+use axisbench::units::mm_to_um;
 use axisbench::{Machine, Trace};
 
 pub use live::Live;
@@ -43,7 +45,7 @@ pub enum Tab {
 pub struct Compare {
     pub axis: String,
     pub reference: String,
-    /// (label, t, err mm) for A and B.
+    /// (label, t s, err m as the trace holds it) for A and B.
     pub runs: Vec<(String, Vec<f64>, Vec<f64>)>,
     /// Rows: (label, peak |err| µm, RMS err µm, worst +->- change µm, worst -->+ change µm).
     pub table: Vec<(String, f64, f64, f64, f64)>,
@@ -384,13 +386,13 @@ impl Workbench {
                     s.reversals
                         .iter()
                         .filter(|r| (r.direction == Reversal::PlusToMinus) == plus_to_minus)
-                        .map(|r| r.peak_err_mm * 1e3)
+                        .map(|r| mm_to_um(r.peak_err_mm))
                         .fold(0.0, f64::max)
                 };
                 table.push((
                     label.clone(),
-                    s.max_err_mm * 1e3,
-                    s.rms_err_mm * 1e3,
+                    mm_to_um(s.max_err_mm),
+                    mm_to_um(s.rms_err_mm),
                     worst(true),
                     worst(false),
                 ));
@@ -398,7 +400,7 @@ impl Workbench {
             let t = m.trace.t().to_vec();
             let err = m
                 .trace
-                .values(&format!("{axis}.err"))
+                .axis_values(&axis, AxisSignal::Err)
                 .map(<[f64]>::to_vec)
                 .unwrap_or_default();
             runs.push((label, t, err));

@@ -7,18 +7,23 @@ use std::collections::VecDeque;
 
 use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
 
+use axisbench::Trace;
+use axisbench::trace::{AxisSignal, AxisSignal as S, display_unit_of};
+use axisbench::units::{m_per_s_to_mm_per_s, m_to_mm, m_to_um, mm_to_m, mm_to_um};
+
 use super::Workbench;
 use super::live::Ring;
 
-/// Min/max per column of `buckets` columns over [t0, t1] for the ring signal `col`,
-/// multiplied by `scale`. Returns points in time order (min then max within a column).
+/// Min/max per column of `buckets` columns over [t0, t1] for the ring signal `col` (SI, as
+/// the trace holds it), shown through `show` (SI → the plotted unit, a named helper of
+/// [`axisbench::units`]). Returns points in time order (min then max within a column).
 pub fn decimate(
     t: &VecDeque<f64>,
     col: &VecDeque<f64>,
     t0: f64,
     t1: f64,
     buckets: usize,
-    scale: f64,
+    show: Show,
 ) -> Vec<[f64; 2]> {
     let n = t.len().min(col.len());
     if n == 0 || buckets == 0 || t1 <= t0 {
@@ -56,7 +61,7 @@ pub fn decimate(
             lo = f64::INFINITY;
             hi = f64::NEG_INFINITY;
         }
-        let v = col[k] * scale;
+        let v = show(col[k]);
         if v.is_finite() {
             if v < lo {
                 lo = v;
@@ -85,8 +90,23 @@ fn partition(t: &VecDeque<f64>, x: f64) -> usize {
     lo
 }
 
-/// One line of a plot: (legend label, trace signal, scale to the plotted unit).
-type LineDef = (String, String, f64);
+/// SI value → the unit a plot shows it in.
+pub type Show = fn(f64) -> f64;
+/// One line of a plot: (legend label, trace signal, SI → the plotted unit).
+type LineDef = (String, String, Show);
+
+/// Shows a value as it is (the plotted unit is SI).
+fn si(v: f64) -> f64 {
+    v
+}
+
+/// N → kN, for friction forces beside torques of a few N·m.
+fn n_to_kn(f: f64) -> f64 {
+    f / N_PER_KN
+}
+
+/// Newtons per kilonewton.
+const N_PER_KN: f64 = 1000.0;
 /// A plot's decimated lines: (legend label, points).
 type PlotLines = Vec<(String, Vec<[f64; 2]>)>;
 
@@ -95,23 +115,27 @@ fn plot_defs(a: &str, ring: &Ring) -> Vec<(&'static str, Vec<LineDef>)> {
     let has = |s: &str| ring.col(s).is_some();
     let mut comps = vec![];
     for (sig, label) in [
-        ("backlash_comp", "backlash [µm]"),
-        ("thermal_comp", "thermal F' at x [µm]"),
+        (S::BacklashComp.name(), "backlash [µm]"),
+        (S::ThermalComp.name(), "thermal F' at x [µm]"),
         ("thermal_f", "thermal F [µm]"),
-        ("cross_comp", "cross ΔZ [µm]"),
+        (S::CrossComp.name(), "cross ΔZ [µm]"),
     ] {
         let name = format!("{a}.{sig}");
         if has(&name) {
-            comps.push((label.to_owned(), name, 1e3));
+            comps.push((label.to_owned(), name, m_to_um as Show));
         }
     }
-    let q = format!("{a}.quadrant_comp");
+    let q = AxisSignal::QuadrantComp.column(a);
     if has(&q) {
-        comps.push((format!("TFF [{}]", ring.unit(&q)), q, 1.0));
+        // A torque, a velocity or a position by where it is injected: shown in the display
+        // unit of what the trace holds (N*m, mm/s, mm).
+        let (unit, show) =
+            display_unit_of(ring.unit(&q)).map_or(("", si as Show), |u| (u.name, u.from_si));
+        comps.push((format!("TFF [{unit}]"), q, show));
     }
     let e = format!("{a}.thermal_e");
     if has(&e) {
-        comps.push(("E [-]".to_owned(), e, 1.0));
+        comps.push(("E [-]".to_owned(), e, si));
     }
     for (sig, label) in [
         ("thermal_e_ref", "E_ref [-]"),
@@ -120,68 +144,149 @@ fn plot_defs(a: &str, ring: &Ring) -> Vec<(&'static str, Vec<LineDef>)> {
     ] {
         let name = format!("{a}.{sig}");
         if has(&name) {
-            comps.push((label.to_owned(), name, 1.0));
+            comps.push((label.to_owned(), name, si));
         }
     }
     vec![
         (
             "position error",
             vec![
-                ("error cmd - pos [µm]".into(), format!("{a}.err"), 1e3),
-                ("following error [µm]".into(), format!("{a}.ferr"), 1e3),
+                ("error cmd - pos [µm]".into(), S::Err.column(a), m_to_um),
+                ("following error [µm]".into(), S::Ferr.column(a), m_to_um),
             ],
         ),
         (
             "torque",
             vec![
-                (
-                    "torque command [N·m]".into(),
-                    format!("{a}.torque_cmd"),
-                    1.0,
-                ),
-                ("torque [N·m]".into(), format!("{a}.torque"), 1.0),
-                ("friction force [kN]".into(), format!("{a}.friction"), 1e-3),
+                ("torque command [N·m]".into(), S::TorqueCmd.column(a), si),
+                ("torque [N·m]".into(), S::Torque.column(a), si),
+                ("friction force [kN]".into(), S::Friction.column(a), n_to_kn),
             ],
         ),
         ("compensation outputs", comps),
         (
             "position and velocity",
             vec![
-                ("position [mm]".into(), format!("{a}.pos"), 1.0),
-                ("velocity [mm/s]".into(), format!("{a}.vel"), 1.0),
+                ("position [mm]".into(), S::Pos.column(a), m_to_mm),
+                (
+                    "velocity [mm/s]".into(),
+                    S::Vel.column(a),
+                    m_per_s_to_mm_per_s,
+                ),
             ],
         ),
     ]
 }
 
+/// The live series of every time plot of `axis`, decimated to `width_px` columns over the
+/// rolling window, and whether the model is running.
+fn live_series(
+    wb: &Workbench,
+    axis: &str,
+    width_px: usize,
+) -> (bool, Vec<(&'static str, PlotLines)>) {
+    let s = wb.live.lock();
+    let ring = &s.ring;
+    let t1 = ring.t_last();
+    let t0 = t1 - wb.window_s;
+    let empty = VecDeque::new();
+    let t = ring.cols.first().unwrap_or(&empty);
+    let series = plot_defs(axis, ring)
+        .into_iter()
+        .map(|(title, sigs)| {
+            let lines = sigs
+                .into_iter()
+                .filter_map(|(label, name, show)| {
+                    ring.col(&name)
+                        .map(|c| (label, decimate(t, c, t0, t1, width_px, show)))
+                })
+                .collect();
+            (title, lines)
+        })
+        .collect();
+    (s.running, series)
+}
+
+/// The line a loaded trace adds to the time plot `title`: its error (derived from cmd and
+/// pos when the file has no `err`), position or torque, decimated over its whole length.
+fn overlay_line(tr: &Trace, axis: &str, title: &str) -> Option<(String, Vec<[f64; 2]>)> {
+    let (sig, show): (AxisSignal, Show) = match title {
+        "position error" => (S::Err, m_to_um),
+        "position and velocity" => (S::Pos, m_to_mm),
+        "torque" => (S::Torque, si),
+        _ => return None,
+    };
+    let vals: Vec<f64> = tr.axis_values(axis, sig).map(<[f64]>::to_vec).or_else(|| {
+        // A measured trace has cmd and pos; its error is derived.
+        let c = tr.axis_values(axis, S::Cmd)?;
+        let p = tr.axis_values(axis, S::Pos)?;
+        (sig == S::Err).then(|| c.iter().zip(p).map(|(a, b)| a - b).collect())
+    })?;
+    let t: VecDeque<f64> = tr.t().iter().copied().collect();
+    let c: VecDeque<f64> = vals.into_iter().collect();
+    let (t0, t1) = (
+        t.front().copied().unwrap_or(0.0),
+        t.back().copied().unwrap_or(0.0),
+    );
+    Some((
+        format!("file: {}", sig.column(axis)),
+        decimate(&t, &c, t0, t1, 2000, show),
+    ))
+}
+
+/// The title row of a time plot, with its PNG export button.
+fn plot_title_ui(wb: &mut Workbench, ui: &mut egui::Ui, title: &str) {
+    ui.horizontal(|ui| {
+        ui.label(egui::RichText::new(title).strong());
+        if ui
+            .small_button("PNG")
+            .on_hover_text("export this plot to PNG")
+            .clicked()
+        {
+            let path =
+                std::path::PathBuf::from(format!("axisbench-{}.png", title.replace(' ', "-")));
+            wb.export_plot(ui.ctx(), title, path);
+        }
+    });
+}
+
+/// A time plot linked with the others on time and cursor, `h` points high.
+fn time_plot(title: &str, h: f32, group: egui::Id, running: bool) -> Plot<'_> {
+    let plot = Plot::new(title)
+        .height(h)
+        .legend(Legend::default())
+        .link_axis(group, [true, false])
+        .link_cursor(group, [true, false])
+        .x_axis_label("t [s]")
+        .label_formatter(|hp| {
+            Some(match hp {
+                egui_plot::HoverPosition::NearDataPoint {
+                    plot_name,
+                    position,
+                    ..
+                } => {
+                    format!("{plot_name}\nt = {:.4} s\n{:.4}", position.x, position.y)
+                }
+                egui_plot::HoverPosition::Elsewhere { position } => {
+                    format!("t = {:.4} s\n{:.4}", position.x, position.y)
+                }
+            })
+        });
+    if running {
+        plot.auto_bounds([true, true])
+    } else {
+        plot
+    }
+}
+
+/// The four linked time plots of the selected axis, with a loaded trace overlaid.
 pub fn time_plots_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     let axis = wb.axis_name();
     let group = egui::Id::unique("time-plots");
     let width_px = ui.available_width().max(100.0) as usize;
     // Four plots, each with a title row above it.
     let h = ((ui.available_height() - 30.0) / 4.0 - 26.0).max(80.0);
-    let (running, series) = {
-        let s = wb.live.lock();
-        let ring = &s.ring;
-        let t1 = ring.t_last();
-        let t0 = t1 - wb.window_s;
-        let empty = VecDeque::new();
-        let t = ring.cols.first().unwrap_or(&empty);
-        let series: Vec<(&'static str, PlotLines)> = plot_defs(&axis, ring)
-            .into_iter()
-            .map(|(title, sigs)| {
-                let lines = sigs
-                    .into_iter()
-                    .filter_map(|(label, name, k)| {
-                        ring.col(&name)
-                            .map(|c| (label, decimate(t, c, t0, t1, width_px, k)))
-                    })
-                    .collect();
-                (title, lines)
-            })
-            .collect();
-        (s.running, series)
-    };
+    let (running, series) = live_series(wb, &axis, width_px);
     let file = wb
         .loaded_trace
         .as_ref()
@@ -200,73 +305,16 @@ pub fn time_plots_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         });
     });
     for (title, lines) in series {
-        ui.horizontal(|ui| {
-            ui.label(egui::RichText::new(title).strong());
-            if ui
-                .small_button("PNG")
-                .on_hover_text("export this plot to PNG")
-                .clicked()
-            {
-                let path =
-                    std::path::PathBuf::from(format!("axisbench-{}.png", title.replace(' ', "-")));
-                wb.export_plot(ui.ctx(), title, path);
-            }
-        });
-        let mut plot = Plot::new(title)
-            .height(h)
-            .legend(Legend::default())
-            .link_axis(group, [true, false])
-            .link_cursor(group, [true, false])
-            .x_axis_label("t [s]")
-            .label_formatter(|hp| {
-                Some(match hp {
-                    egui_plot::HoverPosition::NearDataPoint {
-                        plot_name,
-                        position,
-                        ..
-                    } => {
-                        format!("{plot_name}\nt = {:.4} s\n{:.4}", position.x, position.y)
-                    }
-                    egui_plot::HoverPosition::Elsewhere { position } => {
-                        format!("t = {:.4} s\n{:.4}", position.x, position.y)
-                    }
-                })
-            });
-        if running {
-            plot = plot.auto_bounds([true, true]);
-        }
-        let overlay = file.as_ref().map(|(_, t)| t);
-        let resp = plot.show(ui, |pu| {
+        plot_title_ui(wb, ui, title);
+        let overlay = file
+            .as_ref()
+            .and_then(|(_, tr)| overlay_line(tr, &axis, title));
+        let resp = time_plot(title, h, group, running).show(ui, |pu| {
             for (label, pts) in lines {
                 pu.line(Line::new(label, PlotPoints::from(pts)));
             }
-            if let Some(tr) = overlay {
-                let sig = match title {
-                    "position error" => Some((format!("{axis}.err"), 1e3)),
-                    "position and velocity" => Some((format!("{axis}.pos"), 1.0)),
-                    "torque" => Some((format!("{axis}.torque"), 1.0)),
-                    _ => None,
-                };
-                if let Some((name, k)) = sig {
-                    let vals: Option<Vec<f64>> =
-                        tr.values(&name).map(<[f64]>::to_vec).or_else(|| {
-                            // A measured trace has cmd and pos; its error is derived.
-                            let c = tr.values(&format!("{axis}.cmd"))?;
-                            let p = tr.values(&format!("{axis}.pos"))?;
-                            (title == "position error")
-                                .then(|| c.iter().zip(p).map(|(a, b)| a - b).collect())
-                        });
-                    if let Some(v) = vals {
-                        let t: VecDeque<f64> = tr.t().iter().copied().collect();
-                        let c: VecDeque<f64> = v.into_iter().collect();
-                        let (t0, t1) = (
-                            t.front().copied().unwrap_or(0.0),
-                            t.back().copied().unwrap_or(0.0),
-                        );
-                        let pts = decimate(&t, &c, t0, t1, 2000, k);
-                        pu.line(Line::new(format!("file: {name}"), PlotPoints::from(pts)));
-                    }
-                }
+            if let Some((label, pts)) = overlay {
+                pu.line(Line::new(label, PlotPoints::from(pts)));
             }
         });
         wb.plot_rects_insert(title, resp.response.rect);
@@ -300,7 +348,11 @@ pub fn circle_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     let (cmd, act) = {
         let s = wb.live.lock();
         let r = &s.ring;
-        let get = |n: &str| r.col(n).map(|c| c.iter().copied().collect::<Vec<f64>>());
+        // The ring holds m; the circle is drawn in mm.
+        let get = |n: &str| {
+            r.col(n)
+                .map(|c| c.iter().map(|&x| m_to_mm(x)).collect::<Vec<f64>>())
+        };
         let pairs = |x: Option<Vec<f64>>, y: Option<Vec<f64>>| match (x, y) {
             (Some(x), Some(y)) => x.into_iter().zip(y).collect::<Vec<(f64, f64)>>(),
             _ => vec![],
@@ -349,7 +401,7 @@ pub fn circle_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         .fold(0.0, f64::max);
     ui.label(format!(
         "R = {r0:.4} mm, radial deviation max {:.3} µm (plot magnified {k:.0}×)",
-        max_err * 1e3
+        mm_to_um(max_err)
     ));
     Plot::new("circle")
         .data_aspect(1.0)
@@ -363,74 +415,44 @@ pub fn circle_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         });
 }
 
-pub fn sag_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
-    let cb = wb.preset.crossbeam.clone();
-    if !cb.enabled {
-        ui.label("No crossbeam in this preset (load vertical_lathe_crossbeam).");
-        return;
-    }
-    let Some(beam) =
-        axisbench::plant::Beam::new(&cb, |n| wb.preset.axes.iter().position(|a| a.name == n))
-    else {
-        return;
-    };
-    let x_pos: Vec<f64> = {
-        let s = wb.live.lock();
-        s.machine.axes.iter().map(|a| a.pos_m).collect()
-    };
-    let loads: Vec<(f64, f64)> = beam
+/// Points with a legend label each.
+type LabelledPoints = Vec<(String, [f64; 2])>;
+
+/// The beam's deflection profile (x mm, −Z µm) under `loads` (post x m, weight N), and each
+/// post's point on it, labelled by its X axis.
+fn sag_profile(
+    wb: &Workbench,
+    beam: &axisbench::plant::Beam,
+    loads: &[(f64, f64)],
+    span_m: f64,
+) -> (Vec<[f64; 2]>, LabelledPoints) {
+    let point = |x_m: f64| [m_to_mm(x_m), -m_to_um(beam.deflection_m(x_m, loads))];
+    let profile = (0..=200)
+        .map(|i| point(span_m * i as f64 / 200.0))
+        .collect();
+    let posts = beam
         .posts
         .iter()
-        .map(|p| (x_pos[p.x_axis], p.weight_n))
-        .collect();
-    let span = cb.span_mm * 1e-3;
-    let profile: Vec<[f64; 2]> = (0..=200)
-        .map(|i| {
-            let x = span * i as f64 / 200.0;
-            [x * 1e3, -beam.deflection_m(x, &loads) * 1e6]
-        })
-        .collect();
-    let posts: Vec<(String, [f64; 2])> = beam
-        .posts
-        .iter()
-        .zip(&loads)
+        .zip(loads)
         .map(|(p, &(x, _))| {
             (
                 format!("post on {}", wb.preset.axes[p.x_axis].name),
-                [x * 1e3, -beam.deflection_m(x, &loads) * 1e6],
+                point(x),
             )
         })
         .collect();
-    ui.label(
-        "Beam deflection Z(x) under the tool posts where they stand now, and the cross-table points \
-         (as corrections, sign flipped to compare with the sag). Drag a table point up or down to edit it.",
-    );
-    let tables = wb.preset.cross.clone();
-    let resp = Plot::new("sag")
-        .legend(Legend::default())
-        .x_axis_label("x [mm]")
-        .y_axis_label("Z [µm]")
-        .allow_drag(false)
-        .show(ui, |pu| {
-            pu.line(Line::new("beam sag Z(x) [µm]", PlotPoints::from(profile)));
-            for t in &tables {
-                let pts: Vec<[f64; 2]> = t.points.iter().map(|&(x, dz)| [x, -dz]).collect();
-                pu.points(
-                    Points::new(
-                        format!("table {} over {} (-ΔZ)", t.comp_axis, t.base_axis),
-                        PlotPoints::from(pts),
-                    )
-                    .radius(4.0),
-                );
-            }
-            for (name, pt) in posts {
-                pu.points(Points::new(name, vec![pt]).radius(6.0));
-            }
-            (pu.pointer_coordinate(), *pu.transform())
-        });
-    let (pointer, transform) = resp.inner;
-    // Drag: the table point nearest the press (within 12 px) follows the pointer vertically.
-    let r = &resp.response;
+    (profile, posts)
+}
+
+/// Drag on the sag plot: the table point nearest the press (within 12 px) follows the
+/// pointer vertically, each move an edit of the preset.
+fn sag_drag(
+    wb: &mut Workbench,
+    r: &egui::Response,
+    pointer: Option<egui_plot::PlotPoint>,
+    transform: &egui_plot::PlotTransform,
+) {
+    let tables = &wb.preset.cross;
     if r.drag_started()
         && let Some(p) = pointer
     {
@@ -476,6 +498,60 @@ pub fn sag_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
             wb.sag_drag = None;
         }
     }
+}
+
+/// The sag view: the crossbeam's deflection under the posts where they stand now, with the
+/// cross-table points to compare and drag.
+pub fn sag_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
+    let cb = wb.preset.crossbeam.clone();
+    if !cb.enabled {
+        ui.label("No crossbeam in this preset (load vertical_lathe_crossbeam).");
+        return;
+    }
+    let Some(beam) =
+        axisbench::plant::Beam::new(&cb, |n| wb.preset.axes.iter().position(|a| a.name == n))
+    else {
+        return;
+    };
+    let x_pos: Vec<f64> = {
+        let s = wb.live.lock();
+        s.machine.axes.iter().map(|a| a.pos_m).collect()
+    };
+    let loads: Vec<(f64, f64)> = beam
+        .posts
+        .iter()
+        .map(|p| (x_pos[p.x_axis], p.weight_n))
+        .collect();
+    let (profile, posts) = sag_profile(wb, &beam, &loads, mm_to_m(cb.span_mm));
+    ui.label(
+        "Beam deflection Z(x) under the tool posts where they stand now, and the cross-table points \
+         (as corrections, sign flipped to compare with the sag). Drag a table point up or down to edit it.",
+    );
+    let tables = wb.preset.cross.clone();
+    let resp = Plot::new("sag")
+        .legend(Legend::default())
+        .x_axis_label("x [mm]")
+        .y_axis_label("Z [µm]")
+        .allow_drag(false)
+        .show(ui, |pu| {
+            pu.line(Line::new("beam sag Z(x) [µm]", PlotPoints::from(profile)));
+            for t in &tables {
+                let pts: Vec<[f64; 2]> = t.points.iter().map(|&(x, dz)| [x, -dz]).collect();
+                pu.points(
+                    Points::new(
+                        format!("table {} over {} (-ΔZ)", t.comp_axis, t.base_axis),
+                        PlotPoints::from(pts),
+                    )
+                    .radius(4.0),
+                );
+            }
+            for (name, pt) in posts {
+                pu.points(Points::new(name, vec![pt]).radius(6.0));
+            }
+            (pu.pointer_coordinate(), *pu.transform())
+        });
+    let (pointer, transform) = resp.inner;
+    sag_drag(wb, &resp.response, pointer, &transform);
 }
 
 pub fn compare_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
@@ -531,7 +607,7 @@ pub fn compare_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                 );
                 pu.line(Line::new(
                     label.clone(),
-                    PlotPoints::from(decimate(&t, &v, t0, t1, 2000, 1e3)),
+                    PlotPoints::from(decimate(&t, &v, t0, t1, 2000, m_to_um)),
                 ));
             }
         });

@@ -61,7 +61,8 @@ fn backlash_mode_change_reaches_the_model_and_the_next_reversal() {
     wb.live.advance(24_000);
     let s = wb.live.lock();
     let comp = s.ring.col("x.backlash_comp").expect("backlash column");
-    let q_mm = wb.preset.axes[0].backlash.q_um * 1e-3;
+    // The trace holds m.
+    let q_m = axisbench::units::um_to_m(wb.preset.axes[0].backlash.q_um);
     let n = wb.preset.axes[0].backlash.plus_to_minus.parts_n as f64;
     let first_part = comp
         .iter()
@@ -69,11 +70,11 @@ fn backlash_mode_change_reaches_the_model_and_the_next_reversal() {
         .copied()
         .expect("the reversal happened");
     assert!(
-        (first_part + q_mm / n).abs() < 1e-12,
-        "first output {first_part} mm, expected −Q/N"
+        (first_part + q_m / n).abs() < 1e-15,
+        "first output {first_part} m, expected −Q/N"
     );
     assert!(
-        comp.iter().any(|&v| (v + q_mm).abs() < 1e-12),
+        comp.iter().any(|&v| (v + q_m).abs() < 1e-15),
         "all of Q by the end"
     );
 }
@@ -244,7 +245,7 @@ fn decimation_keeps_extremes_and_bounds_the_point_count() {
             }
         })
         .collect();
-    let pts = super::plots::decimate(&t, &v, 0.0, 10.0, 1000, 1.0);
+    let pts = super::plots::decimate(&t, &v, 0.0, 10.0, 1000, std::convert::identity);
     assert!(pts.len() <= 2000, "{} points for 1000 columns", pts.len());
     assert!(
         pts.iter().any(|p| p[1] == 5.0),

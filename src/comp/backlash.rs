@@ -25,6 +25,7 @@
 
 use super::{CompSignal, PosCompCtx, PositionComp};
 use crate::preset::comp::{BacklashParams, FunctionBasis, OutputMode};
+use crate::signal::AxisSignal;
 use crate::units::{ms_to_s, um_to_m};
 
 /// Commanded travel per cycle below this (m) is standstill, not a direction.
@@ -287,12 +288,12 @@ impl PositionComp for Backlash {
     fn signals(&self) -> Vec<CompSignal> {
         vec![CompSignal {
             axis: self.axis_name.clone(),
-            signal: "backlash_comp".into(),
-            unit: "mm".into(),
+            signal: AxisSignal::BacklashComp.name().into(),
+            quantity: AxisSignal::BacklashComp.quantity(),
         }]
     }
 
     fn values(&self, out: &mut [f64]) {
-        out[0] = self.acc_m * 1e3;
+        out[0] = self.acc_m;
     }
 }

@@ -13,6 +13,8 @@
 
 use super::{CompSignal, PosCompCtx, PositionComp};
 use crate::preset::comp::CrossTable;
+use crate::signal::AxisSignal;
+use crate::units::{mm_to_m, um_to_m};
 
 /// One installed table, in SI.
 struct Installed {
@@ -43,7 +45,7 @@ impl Cross {
                         points_m: t
                             .points
                             .iter()
-                            .map(|&(x, z)| (x * 1e-3, z * 1e-6))
+                            .map(|&(x, z)| (mm_to_m(x), um_to_m(z)))
                             .collect(),
                         value_m: 0.0,
                         name: t.comp_axis.clone(),
@@ -91,18 +93,18 @@ impl PositionComp for Cross {
             .map(|(i, t)| CompSignal {
                 axis: t.name.clone(),
                 signal: if self.tables[..i].iter().any(|u| u.name == t.name) {
-                    format!("cross_comp{}", i + 1)
+                    format!("{}{}", AxisSignal::CrossComp.name(), i + 1)
                 } else {
-                    "cross_comp".into()
+                    AxisSignal::CrossComp.name().into()
                 },
-                unit: "mm".into(),
+                quantity: AxisSignal::CrossComp.quantity(),
             })
             .collect()
     }
 
     fn values(&self, out: &mut [f64]) {
         for (o, t) in out.iter_mut().zip(&self.tables) {
-            *o = t.value_m * 1e3;
+            *o = t.value_m;
         }
     }
 }

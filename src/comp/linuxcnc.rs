@@ -27,6 +27,8 @@
 //! operations as the C code, because the conformance test compares to 1e-6 mm.
 
 use super::{CompSignal, PosCompCtx, PositionComp};
+use crate::signal::Quantity;
+use crate::units::{m_to_mm, mm_to_m};
 
 /// `EMCMOT_COMP_SIZE`: rows a joint's comp table can hold.
 pub const COMP_SIZE: usize = 256;
@@ -366,30 +368,30 @@ impl PositionComp for LinuxCncPosComp {
     }
 
     fn step(&mut self, ctx: &PosCompCtx<'_>, out_m: &mut [f64]) {
-        let pos_mm = ctx.cmd_m[self.axis] * 1e3;
+        let pos_mm = m_to_mm(ctx.cmd_m[self.axis]);
         let d_m = ctx.cmd_m[self.axis] - ctx.prev_cmd_m[self.axis];
         // Standstill is exactly zero velocity in LinuxCNC; the NC's filters can leave
         // sub-picometre noise, which axisbench's own backlash also treats as standstill.
         let vel = if d_m.abs() <= super::backlash::MOVE_EPS_M {
             0.0
         } else {
-            d_m * 1e3 / ctx.period_s
+            m_to_mm(d_m) / ctx.period_s
         };
         self.joint.p.servo_period_s = ctx.period_s;
         self.joint.step(pos_mm, vel);
-        out_m[self.axis] += self.joint.backlash_filt * 1e-3;
+        out_m[self.axis] += mm_to_m(self.joint.backlash_filt);
     }
 
     fn signals(&self) -> Vec<CompSignal> {
         vec![CompSignal {
             axis: self.axis_name.clone(),
             signal: "linuxcnc_comp".into(),
-            unit: "mm".into(),
+            quantity: Quantity::Length,
         }]
     }
 
     fn values(&self, out: &mut [f64]) {
-        out[0] = self.joint.backlash_filt;
+        out[0] = mm_to_m(self.joint.backlash_filt);
     }
 
     fn as_any(&self) -> &dyn std::any::Any {

@@ -21,16 +21,19 @@ pub mod quadrant;
 pub mod thermal;
 
 use crate::preset::{AxisParams, Preset};
+use crate::signal::Quantity;
 
-/// A trace column a compensation writes: (axis name or "" for machine-wide, signal, unit).
+/// A trace column a compensation writes: (axis name or "" for machine-wide, signal, what it
+/// measures).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CompSignal {
     /// Axis name the column belongs to, e.g. "X"; empty for a machine-wide signal.
     pub axis: String,
     /// Signal name within the axis, e.g. "backlash_comp".
     pub signal: String,
-    /// Unit of the column as written to the trace, e.g. "mm", "N*m"; empty if dimensionless.
-    pub unit: String,
+    /// What the values measure; they are in its SI unit ([`Quantity::si_unit`]), like every
+    /// trace column, so the trace and its file get the unit from one place.
+    pub quantity: Quantity,
 }
 
 /// What a position compensation sees when the NC generates a position command.
@@ -58,7 +61,7 @@ pub trait PositionComp: Send {
     fn step(&mut self, ctx: &PosCompCtx<'_>, out_m: &mut [f64]);
     /// The trace columns this compensation writes, in the order of [`PositionComp::values`].
     fn signals(&self) -> Vec<CompSignal>;
-    /// Current values, in the order and units of [`PositionComp::signals`].
+    /// Current values, in the order of [`PositionComp::signals`], in SI.
     fn values(&self, out: &mut [f64]);
     /// A measurement this compensation wants taken now: (axis, position m).
     fn measurement_request(&self) -> Option<(usize, f64)> {
@@ -108,7 +111,7 @@ pub trait ServoComp: Send {
     fn step(&mut self, ctx: &ServoCompCtx, out: &mut ServoCompOut);
     /// The trace columns this compensation writes, in the order of [`ServoComp::values`].
     fn signals(&self) -> Vec<CompSignal>;
-    /// Current values, in the order and units of [`ServoComp::signals`].
+    /// Current values, in the order of [`ServoComp::signals`], in SI.
     fn values(&self, out: &mut [f64]);
     /// For [`CompStack::find`]: downcast to the concrete compensation.
     fn as_any(&self) -> &dyn std::any::Any;

@@ -14,6 +14,8 @@
 
 use super::{CompSignal, ServoComp, ServoCompCtx, ServoCompOut};
 use crate::preset::comp::{Injection, NUpdate, PulseShape, QuadrantParams};
+use crate::signal::{AxisSignal, Quantity};
+use crate::units::{mm_per_s_to_m_per_s, mm_to_m, um_to_m};
 
 /// Quadrant compensation of one axis.
 pub struct Quadrant {
@@ -79,7 +81,7 @@ impl Quadrant {
             self.pa_m = self.last_rev_m.map_or(f64::INFINITY, |p| (here - p).abs());
             self.last_rev_m = Some(here);
             if self.p.adaptive {
-                if self.pa_m < self.p.p0_mm * 1e-3 {
+                if self.pa_m < mm_to_m(self.p.p0_mm) {
                     self.n += 1.0;
                 } else {
                     self.n = match self.p.update {
@@ -143,46 +145,46 @@ impl ServoComp for Quadrant {
         let v = self.tick(ctx.prev_cmd_m, ctx.cmd_m - ctx.prev_cmd_m, ctx.t3_s);
         match self.p.inject {
             Injection::Torque => out.torque_nm += v,
-            Injection::Velocity => out.vel_mps += v * 1e-3,
-            Injection::Position => out.pos_m += v * 1e-6,
+            Injection::Velocity => out.vel_mps += mm_per_s_to_m_per_s(v),
+            Injection::Position => out.pos_m += um_to_m(v),
         }
     }
 
     fn signals(&self) -> Vec<CompSignal> {
-        let s = |name: &str, unit: &str| CompSignal {
+        let s = |name: &str, quantity: Quantity| CompSignal {
             axis: self.axis_name.clone(),
             signal: name.into(),
-            unit: unit.into(),
+            quantity,
         };
-        let unit = match self.p.inject {
-            Injection::Torque => "N*m",
-            Injection::Velocity => "mm/s",
-            Injection::Position => "mm",
+        let q = match self.p.inject {
+            Injection::Torque => Quantity::Torque,
+            Injection::Velocity => Quantity::Velocity,
+            Injection::Position => Quantity::Length,
         };
         vec![
-            s("quadrant_comp", unit),
-            s("quadrant_pa", "mm"),
-            s("quadrant_n", ""),
-            s("quadrant_m", unit),
-            s("quadrant_t", "s"),
+            s(AxisSignal::QuadrantComp.name(), q),
+            s("quadrant_pa", Quantity::Length),
+            s("quadrant_n", Quantity::Plain),
+            s("quadrant_m", q),
+            s("quadrant_t", Quantity::Time),
         ]
     }
 
     fn values(&self, out: &mut [f64]) {
-        // Position pulses are set in µm; the trace holds mm.
-        let k = if self.p.inject == Injection::Position {
-            1e-3
-        } else {
-            1.0
+        // Pulses are set in N·m, mm/s or µm by where they are injected; the trace holds SI.
+        let si: fn(f64) -> f64 = match self.p.inject {
+            Injection::Torque => std::convert::identity,
+            Injection::Velocity => mm_per_s_to_m_per_s,
+            Injection::Position => um_to_m,
         };
-        out[0] = self.value * k;
+        out[0] = si(self.value);
         out[1] = if self.pa_m.is_finite() {
-            self.pa_m * 1e3
+            self.pa_m
         } else {
             0.0
         };
         out[2] = self.n;
-        out[3] = self.m * k;
+        out[3] = si(self.m);
         out[4] = self.t_s;
     }
 }

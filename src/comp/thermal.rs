@@ -23,6 +23,8 @@
 
 use super::{CompSignal, PosCompCtx, PositionComp};
 use crate::preset::comp::{Judgement, Source, ThermalParams};
+use crate::signal::{AxisSignal, Quantity};
+use crate::units::{m_to_um, mm_to_m};
 use nalgebra::{DMatrix, DVector};
 
 /// Decides when to measure again. Fed E once per period; returns true at the period in which
@@ -169,7 +171,7 @@ impl Thermal {
     }
 
     fn lever_m(&self) -> f64 {
-        (self.p.measure_pos_mm - self.p.fixed_end_mm) * 1e-3
+        mm_to_m(self.p.measure_pos_mm - self.p.fixed_end_mm)
     }
 
     /// Asks for a measurement now (the GUI's "measure now").
@@ -179,7 +181,7 @@ impl Thermal {
 
     /// The measurement point's position (m) if a measurement is wanted.
     pub fn wants_measurement(&self) -> Option<f64> {
-        self.pending.then_some(self.p.measure_pos_mm * 1e-3)
+        self.pending.then_some(mm_to_m(self.p.measure_pos_mm))
     }
 
     /// Takes a measurement: `real_m` is the real thermal displacement at the measurement
@@ -193,7 +195,7 @@ impl Thermal {
         } else {
             d / self.f_m
         };
-        self.p.a = r - self.p.k_per_um * (self.f_m * 1e6).abs();
+        self.p.a = r - self.p.k_per_um * m_to_um(self.f_m).abs();
         self.e = self.p.e_of(self.f_m);
         self.f_applied_m = self.e * self.f_m;
         self.measurements += 1;
@@ -243,43 +245,43 @@ impl PositionComp for Thermal {
         let speed = (ctx.cmd_m[i] - ctx.prev_cmd_m[i]).abs() / ctx.period_s;
         self.t_now_s = ctx.t_s;
         self.predict(ctx.t_s, ctx.period_s, speed, ctx.temps_c[i]);
-        let x0 = self.p.fixed_end_mm * 1e-3;
+        let x0 = mm_to_m(self.p.fixed_end_mm);
         self.out_m = -self.f_applied_m * (ctx.cmd_m[i] - x0) / self.lever_m();
         out_m[i] += self.out_m;
     }
 
     fn signals(&self) -> Vec<CompSignal> {
-        let s = |name: &str, unit: &str| CompSignal {
+        let s = |name: &str, quantity: Quantity| CompSignal {
             axis: self.axis_name.clone(),
             signal: name.into(),
-            unit: unit.into(),
+            quantity,
         };
         let mut v = vec![
-            s("thermal_comp", "mm"),
-            s("thermal_f", "mm"),
-            s("thermal_f_applied", "mm"),
-            s("thermal_e", ""),
-            s("thermal_a", ""),
-            s("meas", "mm"),
-            s("thermal_measurements", ""),
+            s(AxisSignal::ThermalComp.name(), Quantity::Length),
+            s("thermal_f", Quantity::Length),
+            s("thermal_f_applied", Quantity::Length),
+            s("thermal_e", Quantity::Plain),
+            s("thermal_a", Quantity::Plain),
+            s(AxisSignal::Meas.name(), Quantity::Length),
+            s("thermal_measurements", Quantity::Plain),
         ];
         if !self.p.e_ref.is_empty() {
-            v.push(s("thermal_e_ref", ""));
-            v.push(s("thermal_band_hi", ""));
-            v.push(s("thermal_band_lo", ""));
+            v.push(s("thermal_e_ref", Quantity::Plain));
+            v.push(s("thermal_band_hi", Quantity::Plain));
+            v.push(s("thermal_band_lo", Quantity::Plain));
         }
         v
     }
 
     fn values(&self, out: &mut [f64]) {
-        out[0] = self.out_m * 1e3;
-        out[1] = self.f_m * 1e3;
-        out[2] = self.f_applied_m * 1e3;
+        out[0] = self.out_m;
+        out[1] = self.f_m;
+        out[2] = self.f_applied_m;
         out[3] = self.e;
         out[4] = self.p.a;
         // Sparse: a value only on the row of a measurement (TRACE_FORMAT `meas`).
         out[5] = match (self.meas_unrecorded.replace(false), self.last_meas_m) {
-            (true, Some(a)) => a * 1e3,
+            (true, Some(a)) => a,
             _ => f64::NAN,
         };
         out[6] = self.measurements as f64;
@@ -332,7 +334,7 @@ pub fn step1(programs: &[Vec<(f64, f64)>]) -> Result<Step1, CalibError> {
         let rows: Vec<(f64, f64)> = pts
             .iter()
             .filter(|(f, _)| *f != 0.0)
-            .map(|&(f, a)| ((f * 1e6).abs(), (a + f) / f))
+            .map(|&(f, a)| (m_to_um(f).abs(), (a + f) / f))
             .filter(|&(_, r)| r >= 0.0 && r.is_finite())
             .collect();
         let distinct = rows.iter().any(|r| r.0 != rows[0].0);
@@ -362,5 +364,5 @@ pub fn step1(programs: &[Vec<(f64, f64)>]) -> Result<Step1, CalibError> {
 pub fn step2(k_per_um: f64, f_m: f64, a_meas_m: f64, e: f64) -> f64 {
     let d = a_meas_m + e * f_m;
     let r = if f_m == 0.0 { e } else { d / f_m };
-    r - k_per_um * (f_m * 1e6).abs()
+    r - k_per_um * m_to_um(f_m).abs()
 }

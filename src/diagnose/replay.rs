@@ -8,8 +8,7 @@ use super::DiagnoseError;
 use crate::drive::{AxisLoop, LoopInput, SegmentAcc};
 use crate::plant::{Beam, PlantOut, Sensor, Start};
 use crate::preset::{AxisParams, Crossbeam, PosSource, Preset};
-use crate::trace::Trace;
-use crate::units::mm_to_m;
+use crate::trace::{AxisSignal, Trace};
 
 /// One axis of a measured record on the model's uniform T3 grid, in SI units.
 #[derive(Debug, Clone)]
@@ -76,107 +75,29 @@ impl Record {
         };
         let t = trace.t();
         check_clock(t, t3_s).map_err(bad)?;
-        let col = |sig: &str, required: bool| -> Result<Option<Vec<f64>>, DiagnoseError> {
-            let name = format!("{axis}.{sig}");
-            let Some(s) = trace.signal(&name) else {
-                if required {
-                    let have: Vec<String> = trace
-                        .signals
-                        .iter()
-                        .map(|s| format!("{}[{}]", s.name, s.unit))
-                        .collect();
-                    return Err(bad(format!(
-                        "no column '{name}'; the record has: {}",
-                        have.join(", ")
-                    )));
-                }
-                return Ok(None);
-            };
-            // Traces hold mm; the model works in m.
-            let to_si: fn(f64) -> f64 = if s.unit == "mm" {
-                mm_to_m
-            } else {
-                std::convert::identity
-            };
-            let mut v = Vec::with_capacity(s.data.len());
-            for (i, &x) in s.data.iter().enumerate() {
-                if !x.is_finite() {
-                    return Err(bad(format!(
-                        "column '{name}' has no finite value at data row {} ({x}); the diagnosis needs it at every sample",
-                        i + 1
-                    )));
-                }
-                v.push(to_si(x));
-            }
-            Ok(Some(v))
-        };
-        let cmd = col("cmd", true)?.unwrap_or_default();
-        let pos = col("pos", true)?.unwrap_or_default();
-        let comp = col("comp", false)?;
-        let force = match col("force", false)? {
-            Some(f) => Some(f),
-            None => col("torque", false)?.map(|_| Vec::new()),
-        };
-        if force.as_ref().is_some_and(Vec::is_empty) {
-            return Err(bad(format!(
-                "'{axis}.torque' is recorded but the diagnosis compares load-side force; map it as '{axis}.force[N]' (torque × 2π/lead)"
-            )));
-        }
-        let base_pos = match base {
-            Some(b) => Some(
-                trace
-                    .values(&format!("{b}.pos"))
-                    .ok_or_else(|| bad(format!("no column '{b}.pos' for the base axis '{b}'")))?
-                    .iter()
-                    .map(|&x| mm_to_m(x))
-                    .collect::<Vec<f64>>(),
-            ),
-            None => None,
-        };
+        let cols = Columns::read(trace, axis, base).map_err(bad)?;
         let pos_source = trace.meta("pos_source").and_then(PosSource::from_name);
         let starts_at_rest = trace.meta("start") == Some("rest");
-        let n = t.len();
-        let dt_mean = (t[n - 1] - t[0]) / (n - 1) as f64;
-        let uniform = ((dt_mean - t3_s) / t3_s).abs() < 1e-3
-            && t.windows(2)
-                .all(|w| ((w[1] - w[0]) - t3_s).abs() < 0.05 * t3_s);
-        if uniform {
-            return Ok(Record {
-                axis: axis.to_owned(),
-                t3_s,
-                t0_s: t[0],
-                cmd_m: cmd,
-                comp_m: comp,
-                pos_m: pos,
-                force_n: force,
-                base_pos_m: base_pos,
-                resampled: false,
-                pos_source,
-                starts_at_rest,
-                beam_x_m: vec![],
-            });
-        }
-        let series = 3 + [comp.is_some(), force.is_some(), base_pos.is_some()]
-            .iter()
-            .filter(|&&b| b)
-            .count();
-        let m = grid_len(t, t3_s, series).map_err(bad)?;
-        let grid: Vec<f64> = (0..m).map(|i| t[0] + i as f64 * t3_s).collect();
-        let rs = |v: &Vec<f64>| resample(t, v, &grid);
-        Ok(Record {
+        let record = |t0_s: f64, c: Columns, resampled: bool| Record {
             axis: axis.to_owned(),
             t3_s,
-            t0_s: t[0],
-            cmd_m: rs(&cmd),
-            comp_m: comp.as_ref().map(rs),
-            pos_m: rs(&pos),
-            force_n: force.as_ref().map(rs),
-            base_pos_m: base_pos.as_ref().map(rs),
-            resampled: true,
+            t0_s,
+            cmd_m: c.cmd_m,
+            comp_m: c.comp_m,
+            pos_m: c.pos_m,
+            force_n: c.force_n,
+            base_pos_m: c.base_pos_m,
+            resampled,
             pos_source,
             starts_at_rest,
             beam_x_m: vec![],
-        })
+        };
+        if is_uniform(t, t3_s) {
+            return Ok(record(t[0], cols, false));
+        }
+        let m = grid_len(t, t3_s, cols.series()).map_err(bad)?;
+        let grid: Vec<f64> = (0..m).map(|i| t[0] + i as f64 * t3_s).collect();
+        Ok(record(t[0], cols.resampled(t, &grid), true))
     }
 
     /// Reads axis `axis` of `trace` for `preset`: on the preset's T3 grid, with its base axis
@@ -188,7 +109,7 @@ impl Record {
         axis: &str,
     ) -> Result<Record, DiagnoseError> {
         let base = super::base_axis_of(preset, axis)
-            .filter(|b| trace.signal(&format!("{b}.pos")).is_some());
+            .filter(|b| trace.axis_values(b, AxisSignal::Pos).is_some());
         let mut rec = Record::from_trace(trace, file, axis, base.as_deref(), preset.timing.t3_s)?;
         let cb = &preset.crossbeam;
         if cb.enabled && cb.posts.iter().any(|p| p.z_axis == axis) {
@@ -225,6 +146,114 @@ impl Record {
             beam_x_m: self.beam_x_m.iter().map(s).collect(),
         }
     }
+}
+
+/// The series of one axis a [`Record`] takes from a trace, in SI as the trace holds them,
+/// on the trace's own time stamps.
+struct Columns {
+    cmd_m: Vec<f64>,
+    comp_m: Option<Vec<f64>>,
+    pos_m: Vec<f64>,
+    force_n: Option<Vec<f64>>,
+    base_pos_m: Option<Vec<f64>>,
+}
+
+impl Columns {
+    /// Reads `cmd`, `pos` (required), `comp`, `force` of `axis` and `pos` of `base`; every
+    /// value must be finite. A record with torque but no force is refused: the diagnosis
+    /// compares load-side force.
+    fn read(trace: &Trace, axis: &str, base: Option<&str>) -> Result<Columns, String> {
+        let cmd_m = required(trace, axis, AxisSignal::Cmd)?;
+        let pos_m = required(trace, axis, AxisSignal::Pos)?;
+        let comp_m = optional(trace, axis, AxisSignal::Comp)?;
+        let force_n = optional(trace, axis, AxisSignal::Force)?;
+        if force_n.is_none() && trace.axis_values(axis, AxisSignal::Torque).is_some() {
+            return Err(format!(
+                "'{axis}.torque' is recorded but the diagnosis compares load-side force; map it as '{axis}.force[N]' (torque × 2π/lead)"
+            ));
+        }
+        let base_pos_m = match base {
+            Some(b) => Some(
+                trace
+                    .axis_values(b, AxisSignal::Pos)
+                    .ok_or_else(|| format!("no column '{b}.pos' for the base axis '{b}'"))?
+                    .to_vec(),
+            ),
+            None => None,
+        };
+        Ok(Columns {
+            cmd_m,
+            comp_m,
+            pos_m,
+            force_n,
+            base_pos_m,
+        })
+    }
+
+    /// How many series a grid will carry (the grid itself, cmd, pos and those present).
+    fn series(&self) -> usize {
+        3 + [
+            self.comp_m.is_some(),
+            self.force_n.is_some(),
+            self.base_pos_m.is_some(),
+        ]
+        .iter()
+        .filter(|&&b| b)
+        .count()
+    }
+
+    /// Every series resampled from time stamps `t` onto `grid`.
+    fn resampled(&self, t: &[f64], grid: &[f64]) -> Columns {
+        let rs = |v: &Vec<f64>| resample(t, v, grid);
+        Columns {
+            cmd_m: rs(&self.cmd_m),
+            comp_m: self.comp_m.as_ref().map(rs),
+            pos_m: rs(&self.pos_m),
+            force_n: self.force_n.as_ref().map(rs),
+            base_pos_m: self.base_pos_m.as_ref().map(rs),
+        }
+    }
+}
+
+/// Column `<axis>.<sig>`, which the diagnosis needs; the columns there are when it is missing.
+fn required(trace: &Trace, axis: &str, sig: AxisSignal) -> Result<Vec<f64>, String> {
+    optional(trace, axis, sig)?.ok_or_else(|| {
+        let have: Vec<String> = trace
+            .signals
+            .iter()
+            .map(|s| format!("{}[{}]", s.name, s.unit))
+            .collect();
+        format!(
+            "no column '{}'; the record has: {}",
+            sig.column(axis),
+            have.join(", ")
+        )
+    })
+}
+
+/// Column `<axis>.<sig>` if recorded, in SI as the trace holds it; every value must be finite.
+fn optional(trace: &Trace, axis: &str, sig: AxisSignal) -> Result<Option<Vec<f64>>, String> {
+    let Some(v) = trace.axis_values(axis, sig) else {
+        return Ok(None);
+    };
+    if let Some((i, x)) = v.iter().enumerate().find(|(_, x)| !x.is_finite()) {
+        return Err(format!(
+            "column '{}' has no finite value at data row {} ({x}); the diagnosis needs it at every sample",
+            sig.column(axis),
+            i + 1
+        ));
+    }
+    Ok(Some(v.to_vec()))
+}
+
+/// True when the time stamps are T3 apart (within 5 % each, 0.1 % on average): the record
+/// is used as it is, without resampling.
+fn is_uniform(t: &[f64], t3_s: f64) -> bool {
+    let n = t.len();
+    let dt_mean = (t[n - 1] - t[0]) / (n - 1) as f64;
+    ((dt_mean - t3_s) / t3_s).abs() < 1e-3
+        && t.windows(2)
+            .all(|w| ((w[1] - w[0]) - t3_s).abs() < 0.05 * t3_s)
 }
 
 /// Most samples [`Record::from_trace`] resamples a record onto: 10 M T3 periods (1250 s at

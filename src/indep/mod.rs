@@ -25,8 +25,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use crate::preset::{Preset, PresetError};
-use crate::trace::{Trace, TraceError};
-use crate::units::{m_to_mm, um_to_m};
+use crate::trace::{AxisSignal, Trace, TraceError};
+use crate::units::um_to_m;
 
 pub mod control;
 pub mod dice;
@@ -502,8 +502,9 @@ pub fn generate(spec: &CaseSpec) -> Result<Case, IndepError> {
     })
 }
 
-/// The logged record as a TRACE_FORMAT trace (mm, s, N). The metadata says what the record
-/// is, never what it hides.
+/// The logged record as a trace (SI in memory like every trace; written through
+/// [`Trace::write_csv`] in mm, s, N). The metadata says what the record is, never what it
+/// hides.
 fn to_trace(s: &RunOut, axis: &str, spec: &CaseSpec) -> Trace {
     let mut tr = Trace::new();
     tr.meta = vec![
@@ -513,13 +514,14 @@ fn to_trace(s: &RunOut, axis: &str, spec: &CaseSpec) -> Trace {
         ("preset".into(), "presets/emps.ron (nominal)".into()),
         ("pos_source".into(), spec.pos_sensor.name().into()),
     ];
-    let c = tr.add_signal(&format!("{axis}.cmd"), "mm");
-    let p = tr.add_signal(&format!("{axis}.pos"), "mm");
-    let f = tr.add_signal(&format!("{axis}.force"), "N");
+    let mut add = |sig: AxisSignal, data: &[f64]| {
+        let i = tr.add_signal(&sig.column(axis), sig.si_unit());
+        tr.signals[i].data = data.to_vec();
+    };
+    add(AxisSignal::Cmd, &s.cmd_m);
+    add(AxisSignal::Pos, &s.pos_m);
+    add(AxisSignal::Force, &s.force_n);
     tr.signals[0].data = s.t_s.clone();
-    tr.signals[c].data = s.cmd_m.iter().map(|x| m_to_mm(*x)).collect();
-    tr.signals[p].data = s.pos_m.iter().map(|x| m_to_mm(*x)).collect();
-    tr.signals[f].data = s.force_n.clone();
     tr
 }
 

@@ -11,7 +11,7 @@ use std::path::Path;
 use super::{
     Finding, JUMP_FACTOR, JUMP_MIN_S, MAX_LINE_BYTES, MAX_META_LINES, MAX_REPORTED_ERRORS,
     MAX_TRACE_ROWS, MAX_TRACE_VALUES, Mapping, QUOTE_CHARS, Signal, Trace, TraceError, Unit,
-    check_unit, quote, split_header,
+    check_unit, decimal, quote, split_header,
 };
 
 /// The size limits of one read (the constants, or small ones in tests).
@@ -404,13 +404,14 @@ fn read_rows<R: Read>(
         .iter()
         .map(|c| Signal {
             name: c.name.clone(),
-            unit: c.unit.canonical.to_owned(),
+            unit: c.unit.si().to_owned(),
             data: Vec::new(),
         })
         .collect();
     let mut lines = LineMap::default();
     let mut found = Findings::default();
     let mut rec = csv::ByteRecord::new();
+    let mut buf = String::new();
     loop {
         match rdr.read_byte_record(&mut rec) {
             Ok(true) => {}
@@ -437,7 +438,7 @@ fn read_rows<R: Read>(
             );
         }
         for (k, c) in cols.iter().enumerate() {
-            let v = cell_value(rec.get(c.src), c, k == 0).unwrap_or_else(|reason| {
+            let v = cell_value(rec.get(c.src), c, k == 0, &mut buf).unwrap_or_else(|reason| {
                 found.push(line, reason);
                 f64::NAN
             });
@@ -485,9 +486,11 @@ fn too_large(src: &Source<'_>, max_rows: usize, n_cols: usize, read: u64) -> Tra
     }
 }
 
-/// One cell in the canonical unit: empty is NaN ("not measured"), except for `t`; text,
-/// NaN and inf are errors naming the column.
-fn cell_value(cell: Option<&[u8]>, c: &Col, is_t: bool) -> Result<f64, String> {
+/// One cell in SI: empty is NaN ("not measured"), except for `t`; text, NaN and inf are
+/// errors naming the column. A unit that is a power of ten of SI has its decimal exponent
+/// moved in the text (in `buf`, reused across cells) before the one correctly rounded parse,
+/// so a value the writer wrote reads back bit for bit; other units convert numerically.
+fn cell_value(cell: Option<&[u8]>, c: &Col, is_t: bool, buf: &mut String) -> Result<f64, String> {
     let cell = cell.unwrap_or_default();
     if cell.is_empty() {
         return if is_t {
@@ -499,19 +502,27 @@ fn cell_value(cell: Option<&[u8]>, c: &Col, is_t: bool) -> Result<f64, String> {
     let text = std::str::from_utf8(cell)
         .map_err(|_| format!("{}: the cell is not UTF-8 text", c.label))?;
     let shown = || quote(text, QUOTE_CHARS);
-    let v: f64 = text
-        .parse()
-        .map_err(|_| format!("{}: '{}' is not a number", c.label, shown()))?;
+    let not_a_number = || format!("{}: '{}' is not a number", c.label, shown());
+    let v: f64 = match c.unit.pow10 {
+        Some(0) => text.parse().map_err(|_| not_a_number())?,
+        // The rewritten text parses exactly when the cell is a decimal number; anything else
+        // (inf, text) is parsed as written, for its own message.
+        Some(k) => match decimal::shift_text(text, k, buf).and_then(|t| t.parse().ok()) {
+            Some(v) => v,
+            None => (c.unit.to_si)(text.parse().map_err(|_| not_a_number())?),
+        },
+        None => (c.unit.to_si)(text.parse().map_err(|_| not_a_number())?),
+    };
     if !v.is_finite() {
         return Err(format!("{}: '{}' is not a finite number", c.label, shown()));
     }
-    let x = (c.unit.to_canonical)(v * c.scale);
+    let x = if c.scale == 1.0 { v } else { v * c.scale };
     if !x.is_finite() {
         return Err(format!(
             "{}: '{}' is out of range in {}",
             c.label,
             shown(),
-            c.unit.canonical
+            c.unit.si()
         ));
     }
     Ok(x)

@@ -1,4 +1,5 @@
 use axisbench::preset::{self, AccDecKind, Mode, Preset};
+use axisbench::units::m_to_mm;
 use axisbench::{Machine, Trace};
 
 /// The default preset with every plant effect off and an ideal (unquantized) encoder: the
@@ -37,9 +38,16 @@ pub fn run(p: &Preset, program: &str) -> Machine {
     m
 }
 
+/// The samples of signal `name`, in SI as the trace holds them.
 pub fn col<'a>(t: &'a Trace, name: &str) -> &'a [f64] {
     t.values(name)
         .unwrap_or_else(|| panic!("trace has no {name}"))
+}
+
+/// The samples of a length (m) or velocity (m/s) signal in mm or mm/s, for checks that reason
+/// in the units of the program.
+pub fn col_mm(t: &Trace, name: &str) -> Vec<f64> {
+    col(t, name).iter().map(|&x| m_to_mm(x)).collect()
 }
 
 /// Index of the first sample at or after `t_s`.

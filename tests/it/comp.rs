@@ -403,7 +403,7 @@ fn thermal_auto_remeasurement_beats_a_fixed_e() {
     assert!(n >= 1, "no automatic measurement in 2 h");
     assert!(
         auto < 0.6 * fixed_r && fixed_r < 0.5 * off_r,
-        "residuals: off {off_r}, fixed {fixed_r}, auto {auto} mm"
+        "residuals: off {off_r}, fixed {fixed_r}, auto {auto} m"
     );
     // The sparse measurement column holds exactly the measurements taken.
     let mut m = Machine::new(&p, &texts).expect("machine");

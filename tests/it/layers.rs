@@ -12,6 +12,7 @@ const LAYERS: &[(&str, u32)] = &[
     ("units", 0),
     ("table", 0),
     ("fsutil", 0),
+    ("signal", 0),
     ("preset", 1),
     ("nc", 2),
     ("comp", 3),

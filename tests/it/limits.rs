@@ -17,8 +17,8 @@ fn trace_with_times(t: Vec<f64>) -> Trace {
         meta: vec![],
         signals: vec![
             sig("t", "s", t),
-            sig("x.cmd", "mm", vec![0.0; n]),
-            sig("x.pos", "mm", vec![0.0; n]),
+            sig("x.cmd", "m", vec![0.0; n]),
+            sig("x.pos", "m", vec![0.0; n]),
         ],
     }
 }

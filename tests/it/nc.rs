@@ -4,7 +4,10 @@ use axisbench::Machine;
 use axisbench::nc::program;
 use axisbench::preset::{self, AccDecKind, Mode, PlcEvent};
 
-use crate::common::{at, col, plain, run};
+use axisbench::trace::Quantity;
+use axisbench::units::{m_to_um, mm_to_m};
+
+use crate::common::{at, col, col_mm, plain, run};
 
 fn parse_err(src: &str) -> program::ProgramError {
     let blocks = match program::parse(src, "p.ngc") {
@@ -75,7 +78,7 @@ fn linear_accdec_ramps_velocity_over_its_time_constant() {
     p.nc.accdec.tc1_s = 0.1;
     let m = run(&p, "G90 G01 X100. F3000\nM30\n");
     let tr = &m.trace;
-    let cmd = col(tr, "x.cmd");
+    let cmd = col_mm(tr, "x.cmd");
     let v = |t: f64| {
         let k = at(tr, t);
         (cmd[k + 8] - cmd[k]) / (tr.t()[k + 8] - tr.t()[k])
@@ -84,8 +87,8 @@ fn linear_accdec_ramps_velocity_over_its_time_constant() {
     assert!((v(0.15) - 50.0).abs() < 0.5, "v after tc = {}", v(0.15));
     assert!((v(0.05) - 25.0).abs() < 3.0, "v at tc/2 = {}", v(0.05));
     assert_eq!(
-        *cmd.last().unwrap_or(&0.0),
-        100.0,
+        *col(tr, "x.cmd").last().unwrap_or(&0.0),
+        mm_to_m(100.0),
         "acc/dec must not lose travel"
     );
 }
@@ -98,7 +101,7 @@ fn bell_accdec_limits_jerk_and_keeps_the_end_point() {
     p.nc.accdec.tc2_s = 0.04;
     let m = run(&p, "G90 G01 X50. F3000\nM30\n");
     let cmd = col(&m.trace, "x.cmd");
-    assert_eq!(*cmd.last().unwrap_or(&0.0), 50.0);
+    assert_eq!(*cmd.last().unwrap_or(&0.0), mm_to_m(50.0));
 }
 
 /// Deterministic increments in µm-ish steps, as a direct-command program.
@@ -127,15 +130,11 @@ fn direct_mode_delivers_the_programs_t3_data_exactly() {
         .iter()
         .position(|&x| x == 1.0)
         .expect("direct mode entered");
-    // Same arithmetic as the NC: mm → m, accumulate, back to mm for the trace.
+    // Same arithmetic as the NC: mm → m, accumulate; the trace holds m.
     let mut pos_m = 0.0;
     for (i, inc) in incs.iter().enumerate() {
-        pos_m += axisbench::units::mm_to_m(*inc);
-        assert_eq!(
-            cmd[first + i],
-            axisbench::units::m_to_mm(pos_m),
-            "sample {i}"
-        );
+        pos_m += mm_to_m(*inc);
+        assert_eq!(cmd[first + i], pos_m, "sample {i}");
     }
     // The amplifier ran on exactly one sample per T3 in between.
     assert_eq!(mode[first + incs.len() - 1], 1.0);
@@ -148,7 +147,10 @@ fn modes_switch_by_parameter_program_and_plc() {
     p.nc.initial_mode = Mode::Direct;
     let m = run(&p, "U0.001\nU0.001\nM30\n");
     assert_eq!(col(&m.trace, "mode")[0], 1.0);
-    assert_eq!(*col(&m.trace, "x.cmd").last().unwrap_or(&0.0), 0.002);
+    assert_eq!(
+        *col(&m.trace, "x.cmd").last().unwrap_or(&0.0),
+        mm_to_m(0.001) + mm_to_m(0.001)
+    );
     // G05P4 / G05P0 in the program.
     let p = plain();
     let m = run(&p, "G01 X1. F600\nG05P4\nU0.001\nG05P0\nG01 X2.\nM30\n");
@@ -160,7 +162,7 @@ fn modes_switch_by_parameter_program_and_plc() {
             .position(|&x| x == 0.0)
             .expect("switched off");
     assert!(off > on);
-    assert_eq!(*col(&m.trace, "x.cmd").last().unwrap_or(&0.0), 2.0);
+    assert_eq!(*col(&m.trace, "x.cmd").last().unwrap_or(&0.0), mm_to_m(2.0));
     // PLC event at a set time.
     let mut p = plain();
     p.scenario.plc_events = vec![PlcEvent {
@@ -179,10 +181,11 @@ fn radial_error_um(m: &Machine, t0: f64, t1: f64) -> f64 {
     let tr = &m.trace;
     let x = col(tr, "x.pos");
     let y = col(tr, "y.pos");
-    (at(tr, t0)..at(tr, t1))
-        .map(|k| (x[k].hypot(y[k]) - 10.0).abs())
-        .fold(0.0, f64::max)
-        * 1e3
+    m_to_um(
+        (at(tr, t0)..at(tr, t1))
+            .map(|k| (x[k].hypot(y[k]) - mm_to_m(10.0)).abs())
+            .fold(0.0, f64::max),
+    )
 }
 
 #[test]
@@ -262,11 +265,11 @@ fn compensation_slots_reach_the_command_and_the_torque() {
             vec![CompSignal {
                 axis: "x".into(),
                 signal: "offset_comp".into(),
-                unit: "mm".into(),
+                quantity: Quantity::Length,
             }]
         }
         fn values(&self, out: &mut [f64]) {
-            out[0] = 0.005;
+            out[0] = 5e-6;
         }
         fn as_any(&self) -> &dyn std::any::Any {
             self
@@ -291,7 +294,7 @@ fn compensation_slots_reach_the_command_and_the_torque() {
             vec![CompSignal {
                 axis: "x".into(),
                 signal: "tff".into(),
-                unit: "N*m".into(),
+                quantity: Quantity::Torque,
             }]
         }
         fn values(&self, out: &mut [f64]) {
@@ -312,12 +315,12 @@ fn compensation_slots_reach_the_command_and_the_torque() {
     m.set_comps(comps);
     m.run(10.0).unwrap();
     let tr = &m.trace;
-    assert!((col(tr, "x.comp")[tr.len() - 1] - 0.005).abs() < 1e-12);
+    assert!((col(tr, "x.comp")[tr.len() - 1] - 5e-6).abs() < 1e-15);
     assert!(
-        (col(tr, "x.pos")[tr.len() - 1] - 0.005).abs() < 1e-6,
+        (col(tr, "x.pos")[tr.len() - 1] - 5e-6).abs() < 1e-9,
         "the table follows the correction"
     );
-    assert_eq!(col(tr, "x.offset_comp")[0], 0.005);
+    assert_eq!(col(tr, "x.offset_comp")[0], 5e-6);
     // Torque feed-forward: with the integrator balancing it at rest, the first sample shows it.
     let mut m = Machine::new(&p, &[("t".into(), "G04 P100\nM30\n".into())]).expect("machine");
     let mut comps = CompStack::default();

@@ -1,9 +1,9 @@
 //! Analytic and physical checks of the amplifier and the plant.
 
 use axisbench::preset::{Coupling, Mode};
-use axisbench::units::force_per_torque;
+use axisbench::units::{force_per_torque, mm_to_m, mm_to_um};
 
-use crate::common::{at, col, plain, run};
+use crate::common::{at, col, col_mm, plain, run};
 
 #[test]
 fn ramp_following_error_is_v_over_kp() {
@@ -12,7 +12,7 @@ fn ramp_following_error_is_v_over_kp() {
     // 100 mm/s for 2 s.
     let m = run(&p, "G90 G01 X200. F6000\nM30\n");
     let tr = &m.trace;
-    let ferr = col(tr, "x.ferr");
+    let ferr = col_mm(tr, "x.ferr");
     let expected_mm = 100.0 / kp;
     for t_s in [0.8, 1.0, 1.5] {
         let e = ferr[at(tr, t_s)];
@@ -44,10 +44,11 @@ fn step_response_matches_second_order_analytic() {
     let m = run(&p, "G05P4\nU0.1\nG04 P500\nM30\n");
     let tr = &m.trace;
     let cmd = col(tr, "x.cmd");
-    let pos = col(tr, "x.pos");
+    let pos = col_mm(tr, "x.pos");
     let k0 = cmd.iter().position(|&c| c > 0.0).expect("step arrives");
     assert_eq!(
-        cmd[k0], step_mm,
+        cmd[k0],
+        mm_to_m(step_mm),
         "the amplifier sees the full step in one T3"
     );
     let disc = (kv_over_m * kv_over_m - 4.0 * kv_over_m * kp).sqrt();
@@ -107,16 +108,16 @@ fn uncompensated_backlash_loses_b_at_a_reversal() {
     a.friction.enabled = true;
     let m = run(&p, "G90 G01 X10. F1000\nG04 P500\nX5.\nG04 P500\nM30\n");
     let tr = &m.trace;
-    let err = col(tr, "x.err");
+    let err = col_mm(tr, "x.err");
     let after_plus = err[at(tr, 0.6 + 0.45)];
     let after_minus = *err.last().unwrap_or(&f64::NAN);
-    let lost_um = (after_plus - after_minus) * 1e3;
+    let lost_um = mm_to_um(after_plus - after_minus);
     assert!(
         (lost_um - 20.0).abs() < 0.2,
         "lost motion at the reversal {lost_um} µm, expected b = 20 µm"
     );
     // Semi-closed loop: the motor itself is exactly where it was told to be.
-    let ferr = *col(tr, "x.ferr").last().unwrap_or(&f64::NAN);
+    let ferr = *col_mm(tr, "x.ferr").last().unwrap_or(&f64::NAN);
     assert!(
         ferr.abs() < 1e-6,
         "motor-side following error {ferr} mm at rest"
@@ -132,7 +133,7 @@ fn closed_loop_on_the_scale_removes_the_backlash_error() {
     a.friction.enabled = true;
     a.servo.feedback = axisbench::preset::Feedback::Scale;
     let m = run(&p, "G90 G01 X10. F1000\nG04 P500\nX5.\nG04 P500\nM30\n");
-    let err = *col(&m.trace, "x.err").last().unwrap_or(&f64::NAN);
+    let err = *col_mm(&m.trace, "x.err").last().unwrap_or(&f64::NAN);
     assert!(err.abs() < 1e-4, "closed loop leaves {err} mm at rest");
 }
 
@@ -150,8 +151,8 @@ fn stick_holds_exactly_without_drift_or_chatter() {
     a.gravity.offset_n = 350.0; // pushes +, held by static friction
     a.servo.torque_limit_nm = 1e-6; // drive effectively off
     let m = run(&p, "G04 P1000\nM30\n");
-    let vel = col(&m.trace, "x.vel");
-    let pos = col(&m.trace, "x.pos");
+    let vel = col_mm(&m.trace, "x.vel");
+    let pos = col_mm(&m.trace, "x.pos");
     assert!(vel.iter().all(|&v| v == 0.0), "table crept while stuck");
     assert!(
         pos.iter().all(|&x| x == pos[0]),
@@ -207,8 +208,8 @@ fn thermal_growth_grows_with_distance_from_the_fixed_bearing() {
     let alpha = a.screw_thermal.alpha_per_k;
     let m = run(&p, "G90 G01 X100. F6000\nG04 P300\nX400.\nM30\n");
     let tr = &m.trace;
-    let th = col(tr, "x.thermal");
-    let pos = col(tr, "x.pos");
+    let th = col_mm(tr, "x.thermal");
+    let pos = col_mm(tr, "x.pos");
     for k in [at(tr, 1.2), tr.len() - 1] {
         let expected = alpha * 5.0 * (pos[k] - th[k]);
         assert!(
@@ -286,8 +287,8 @@ fn sag_is_largest_with_the_post_at_midspan() {
     m.set_recording(true);
     m.run(600.0).unwrap();
     let tr = &m.trace;
-    let x = col(tr, "x.pos");
-    let sag = col(tr, "z.sag");
+    let x = col_mm(tr, "x.pos");
+    let sag = col_mm(tr, "z.sag");
     let k_mid = x
         .iter()
         .enumerate()
@@ -299,7 +300,7 @@ fn sag_is_largest_with_the_post_at_midspan() {
         "post near midspan should sag more than near the support"
     );
     // The Z servo cannot see the sag: the tool error equals it.
-    let err = col(tr, "z.err");
+    let err = col_mm(tr, "z.err");
     assert!((err[k_mid] + sag[k_mid]).abs() < 5e-3);
 }
 
@@ -311,7 +312,7 @@ fn two_mass_axis_follows_and_settles() {
         damping_n_s_per_m: 2.0e4,
     };
     let m = run(&p, "G90 G01 X50. F3000\nM30\n");
-    let err = *col(&m.trace, "x.err").last().unwrap_or(&f64::NAN);
+    let err = *col_mm(&m.trace, "x.err").last().unwrap_or(&f64::NAN);
     assert!(err.abs() < 1e-4, "two-mass axis left {err} mm");
 }
 
@@ -326,7 +327,7 @@ fn torque_limit_saturates_the_command() {
         (peak - 2.0).abs() < 1e-12,
         "torque command peaked at {peak} N·m with a 2 N·m limit"
     );
-    let end = *col(&m.trace, "x.pos").last().unwrap_or(&0.0);
+    let end = *col_mm(&m.trace, "x.pos").last().unwrap_or(&0.0);
     assert!(
         (end - 5.0).abs() < 1e-3,
         "did not recover from saturation: {end}"
@@ -339,8 +340,8 @@ fn encoder_quantization_puts_feedback_on_the_grid() {
     p.axes[0].encoder.quantize_motor = true;
     p.axes[0].encoder.motor_counts_per_rev = 1000; // 10 µm per count on a 10 mm lead
     let m = run(&p, "G90 G01 X0.1234 F100\nM30\n");
-    let ferr = col(&m.trace, "x.ferr");
-    let cmd = col(&m.trace, "x.cmd_comp");
+    let ferr = col_mm(&m.trace, "x.ferr");
+    let cmd = col_mm(&m.trace, "x.cmd_comp");
     let fb: Vec<f64> = cmd.iter().zip(ferr).map(|(c, e)| c - e).collect();
     for v in fb {
         let counts = v / 0.01;
@@ -363,8 +364,8 @@ fn lead_error_table_is_interpolated_and_held() {
         "G90 G01 X25. F3000\nG04 P200\nX75.\nG04 P200\nX150.\nM30\n",
     );
     let tr = &m.trace;
-    let le = col(tr, "x.lead_err");
-    let pos = col(tr, "x.pos");
+    let le = col_mm(tr, "x.lead_err");
+    let pos = col_mm(tr, "x.pos");
     for k in (0..tr.len()).step_by(997) {
         let x = pos[k] - le[k];
         let want = if x <= 0.0 {

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use axisbench::trace::{self, Mapping, Trace, TraceError};
 
-use crate::common::{plain, run};
+use crate::common::{col, plain, run};
 
 #[test]
 fn csv_round_trip_is_exact() {
@@ -33,13 +33,20 @@ fn units_are_converted_and_empty_cells_are_missing() {
     let text = "# machine: test\nt[ms],x.cmd[m],x.pos[um],x.vel[mm/min],x.meas[mm]\n0,0.001,1000,60,\n1,0.002,2000,120,2.5\n";
     let t = Trace::from_csv_str(text, "u.csv", None).expect("reads");
     assert_eq!(t.meta("machine"), Some("test"));
+    // Traces hold SI; powers of ten of it (ms, um, mm) convert exactly, as the decimal read.
     assert_eq!(t.t(), &[0.0, 0.001]);
-    assert_eq!(t.values("x.cmd").expect("cmd"), &[1.0, 2.0]);
-    assert_eq!(t.values("x.pos").expect("pos"), &[1.0, 2.0]);
-    assert_eq!(t.values("x.vel").expect("vel"), &[1.0, 2.0]);
-    let meas = t.values("x.meas").expect("meas");
-    assert!(meas[0].is_nan() && meas[1] == 2.5);
-    assert_eq!(t.signal("x.vel").map(|s| s.unit.as_str()), Some("mm/s"));
+    assert_eq!(col(&t, "x.cmd"), &[0.001, 0.002]);
+    assert_eq!(col(&t, "x.pos"), &[0.001, 0.002]);
+    let vel = col(&t, "x.vel");
+    assert!(
+        (vel[0] - 0.001).abs() < 1e-18 && (vel[1] - 0.002).abs() < 1e-18,
+        "{vel:?}"
+    );
+    let meas = col(&t, "x.meas");
+    assert!(meas[0].is_nan() && meas[1] == 0.0025);
+    assert_eq!(t.signal("x.vel").map(|s| s.unit.as_str()), Some("m/s"));
+    assert_eq!(t.signal("x.pos").map(|s| s.unit.as_str()), Some("m"));
+    assert_eq!(t.signal("t").map(|s| s.unit.as_str()), Some("s"));
 }
 
 fn bad(text: &str) -> String {
@@ -81,8 +88,8 @@ fn foreign_layout_is_read_through_a_mapping() {
         .expect("mapping");
     let text = "t_s,qg_m,qm_m,vir_V,force_N\n0,0.001,0.0005,1,35.15\n0.001,0.002,0.0015,2,70.3\n";
     let t = Trace::from_csv_str(text, "emps.csv", Some(&map)).expect("reads");
-    assert_eq!(t.values("x.cmd").expect("cmd"), &[1.0, 2.0]);
-    assert_eq!(t.values("x.pos").expect("pos"), &[0.5, 1.5]);
+    assert_eq!(col(&t, "x.cmd"), &[0.001, 0.002]);
+    assert_eq!(col(&t, "x.pos"), &[0.0005, 0.0015]);
     assert!(t.signal("vir_V").is_none());
     let missing = Mapping::parse("t[s]=t_s, x.cmd[m]=nope, x.pos[m]=qm_m").expect("mapping");
     let e = Trace::from_csv_str(text, "emps.csv", Some(&missing)).expect_err("missing column");
@@ -105,9 +112,9 @@ fn real_emps_record_reads_through_the_mapping() {
         .expect("mapping");
     let t = Trace::read_csv(&path, Some(&map)).expect("reads");
     assert_eq!(t.len(), 24_841);
-    let pos = t.values("x.pos").expect("pos");
+    let pos = col(&t, "x.pos");
     let max = pos.iter().cloned().fold(f64::MIN, f64::max);
-    assert!((max - 246.378).abs() < 0.01, "max position {max} mm");
+    assert!((max - 0.246378).abs() < 1e-5, "max position {max} m");
 }
 
 /// A clean 1 kHz trace of `n` rows, with `f(i)` replacing row i's time when it returns Some.
@@ -126,7 +133,7 @@ fn bom_and_crlf_are_accepted() {
     let t = Trace::from_csv_str(text, "crlf.csv", None).expect("BOM + CRLF");
     assert_eq!(t.meta("source"), Some("logger"));
     assert_eq!(t.t(), &[0.0, 0.1]);
-    assert_eq!(t.values("x.pos").expect("pos"), &[2.0, 4.0]);
+    assert_eq!(col(&t, "x.pos"), &[0.002, 0.004]);
     // A BOM right before the header (no metadata) used to give a "1:1" error.
     let text = "\u{feff}t[s],x.cmd[mm],x.pos[mm]\r\n0,1,2\r\n";
     let t = Trace::from_csv_str(text, "bom.csv", None).expect("BOM before the header");
@@ -179,8 +186,8 @@ fn units_must_measure_what_the_signal_means() {
     // keep any accepted unit.
     let ok = "t[ms],x.cmd[um],x.pos[m],x.quadrant_comp[N*m],y.cmd[mm],y.pos[mm],y.quadrant_comp[mm/s],x.quadrant_pa[mm/min],x.current[A],x.meas[mm],mode.ch2[]\n0,1,2,3,4,5,6,60,1,,0\n";
     let t = Trace::from_csv_str(ok, "ok.csv", None).expect("units fit");
-    assert_eq!(t.values("x.quadrant_pa").expect("pa"), &[1.0]);
-    assert_eq!(t.values("x.cmd").expect("cmd"), &[0.001]);
+    assert!((col(&t, "x.quadrant_pa")[0] - 0.001).abs() < 1e-18);
+    assert_eq!(col(&t, "x.cmd"), &[1e-6]);
     // Mappings are checked the same way.
     let e = Mapping::parse("t[s]=t_s, x.cmd[N]=qg_m, x.pos[m]=qm_m").expect_err("bad unit");
     assert!(e.to_string().contains("x.cmd is a length"), "{e}");
@@ -330,17 +337,21 @@ fn cells_name_their_line_and_column() {
     let e = Trace::from_csv_str("t[s],x.cmd[mm],x.pos[mm]\n,0,0\n", "e.csv", None)
         .expect_err("empty time");
     assert_eq!(e.to_string(), "e.csv:2: column 1 't[s]': time t is empty");
-    // A finite value that overflows on conversion.
-    let e = Trace::from_csv_str("t[s],x.cmd[m],x.pos[mm]\n0,1e308,0\n", "o.csv", None)
-        .expect_err("overflow");
+    // A finite value that overflows by a mapping's scale.
+    let map = Mapping::parse("t[s]=t, x.cmd[m]=c*1e10, x.pos[m]=p").expect("mapping");
+    let e = Trace::from_csv_str("t,c,p\n0,1e308,0\n", "o.csv", Some(&map)).expect_err("overflow");
     assert!(
         e.to_string()
-            .contains("column 2 'x.cmd[m]': '1e308' is out of range in mm"),
+            .contains("column 2 'c': '1e308' is out of range in m"),
         "{e}"
     );
+    // Converting to SI cannot overflow: 1e308 mm is 1e305 m.
+    let t =
+        Trace::from_csv_str("t[s],x.cmd[mm],x.pos[mm]\n0,1e308,0\n", "o.csv", None).expect("large");
+    assert_eq!(col(&t, "x.cmd"), &[1e305]);
     // Empty cells are "not measured", not errors.
     let t = Trace::from_csv_str("t[s],x.cmd[mm],x.pos[mm]\n0,0,\n", "ok.csv", None).expect("empty");
-    assert!(t.values("x.pos").expect("pos")[0].is_nan());
+    assert!(col(&t, "x.pos")[0].is_nan());
 }
 
 #[test]
@@ -378,4 +389,114 @@ fn readers_bytes_and_files_read_the_same() {
     let c = Trace::from_reader(std::io::Cursor::new(&bytes), "same.csv", None).expect("reader");
     assert_eq!(a, b);
     assert_eq!(a, c);
+}
+
+/// `v` (SI) in unit `u`'s cell text, read back through a one-row trace as signal `sig`.
+fn cell_round_trip(v: f64, u: &str, sig: &str) -> f64 {
+    let unit = trace::unit(u).expect("accepted unit");
+    let mut cell = String::new();
+    trace::push_value(&mut cell, v, unit);
+    let text = format!("t[s],x.cmd[mm],x.pos[mm],{sig}[{u}]\n0,0,0,{cell}\n");
+    let t = Trace::from_csv_str(&text, "p.csv", None).unwrap_or_else(|e| panic!("{v}: {e}"));
+    col(&t, sig)[0]
+}
+
+/// Any finite f64: every exponent, subnormals and both zeros included.
+fn finite() -> impl proptest::strategy::Strategy<Value = f64> {
+    use proptest::prelude::*;
+    prop_oneof![
+        any::<u64>().prop_map(f64::from_bits),
+        -1.0e3..1.0e3_f64,
+        (-1.0e6..1.0e6_f64).prop_map(|x| x.round() / 1e4),
+    ]
+    .prop_filter("finite", |v| v.is_finite())
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config::with_cases(2000))]
+
+    #[test]
+    fn any_finite_value_reads_back_bit_identical_from_mm_um_and_mm_per_s(v in finite()) {
+        for (u, sig) in [("mm", "x.meas"), ("um", "x.meas"), ("mm/s", "x.vel")] {
+            let back = cell_round_trip(v, u, sig);
+            proptest::prop_assert_eq!(back.to_bits(), v.to_bits(), "{} {} read back as {}", v, u, back);
+        }
+    }
+
+    #[test]
+    fn any_finite_value_round_trips_through_the_writer(v in finite(), w in finite()) {
+        let mut tr = Trace::new();
+        tr.signals[0].data = vec![0.0, 1.0];
+        for (name, unit) in [("x.cmd", "m"), ("x.pos", "m"), ("x.vel", "m/s"), ("x.force", "N")] {
+            let i = tr.add_signal(name, unit);
+            tr.signals[i].data = vec![v, w];
+        }
+        let mut csv = Vec::new();
+        tr.write_csv_to(&mut csv).expect("writes");
+        let text = String::from_utf8(csv).expect("utf8");
+        let back = Trace::from_csv_str(&text, "w.csv", None).expect("reads");
+        for (a, b) in tr.signals.iter().zip(&back.signals) {
+            proptest::prop_assert_eq!(&a.unit, &b.unit);
+            let bits = |s: &trace::Signal| s.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            proptest::prop_assert_eq!(bits(a), bits(b), "{} in\n{}", a.name, text);
+        }
+    }
+}
+
+#[test]
+fn cells_are_written_in_display_units_as_exact_decimals() {
+    let mut tr = Trace::new();
+    tr.signals[0].data = vec![0.0, 0.00025];
+    for (name, unit, data) in [
+        ("x.cmd", "m", [0.001, 0.1 + 0.2]),
+        ("x.pos", "m", [-1.25e-13, 2.0e20]),
+        ("x.vel", "m/s", [0.05, -0.0]),
+        ("x.force", "N", [12.5, 1e-7]),
+    ] {
+        let i = tr.add_signal(name, unit);
+        tr.signals[i].data = data.to_vec();
+    }
+    let mut csv = Vec::new();
+    tr.write_csv_to(&mut csv).expect("writes");
+    let text = String::from_utf8(csv).expect("utf8");
+    assert_eq!(
+        text,
+        "t[s],x.cmd[mm],x.pos[mm],x.vel[mm/s],x.force[N]\n\
+         0.0,1,-1.25e-10,50,12.5\n\
+         0.00025,300.00000000000004,2e23,-0,1e-7\n"
+    );
+}
+
+/// A simulated trace of every signal a shipped preset records (compensations included)
+/// reads back from its CSV bit for bit.
+#[test]
+fn a_simulated_trace_reads_back_bit_for_bit() {
+    for name in [
+        "vertical_z_gravity.ron",
+        "vertical_lathe_crossbeam.ron",
+        "thermal_warmup.ron",
+    ] {
+        let lp = axisbench::preset::load_embedded(name).expect("preset");
+        let mut m = axisbench::Machine::from_loaded(&lp).expect("machine");
+        m.run(2.0).expect("runs");
+        let mut csv = Vec::new();
+        m.trace.write_csv_to(&mut csv).expect("writes");
+        let text = String::from_utf8(csv).expect("utf8");
+        assert!(
+            text.contains(",x.cmd[mm],") || text.contains(",z.cmd[mm],"),
+            "{name}"
+        );
+        let back = Trace::from_csv_str(&text, name, None).expect("reads");
+        assert_eq!(back.meta, m.trace.meta, "{name}");
+        assert_eq!(back.signals.len(), m.trace.signals.len(), "{name}");
+        for (a, b) in m.trace.signals.iter().zip(&back.signals) {
+            assert_eq!((&a.name, &a.unit), (&b.name, &b.unit), "{name}");
+            let differ = a
+                .data
+                .iter()
+                .zip(&b.data)
+                .position(|(x, y)| x.to_bits() != y.to_bits() && !(x.is_nan() && y.is_nan()));
+            assert_eq!(differ, None, "{name}: {} changed", a.name);
+        }
+    }
 }
