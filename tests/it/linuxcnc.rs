@@ -315,7 +315,6 @@ fn exported_presets_match_the_real_linuxcnc_every_servo_period() {
             "{name}: {} samples, {} reversals, max |Δ motor_pos_cmd| = {:.2e} mm, max |Δ backlash_filt| = {:.2e} mm, {} zero-printed velocities resolved",
             r.samples, r.reversals, r.max_motor_dev, r.max_filt_dev, r.ambiguous
         ));
-        let _ = std::fs::remove_dir_all(&dir);
     }
     println!("{}", summary.join("\n"));
 }
