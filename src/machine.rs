@@ -594,9 +594,7 @@ impl Machine {
         let rows = usize::try_from(steps / u64::from(rec.every) + 1)
             .unwrap_or(usize::MAX)
             .min(room);
-        for s in &mut self.trace.signals {
-            s.data.reserve(rows);
-        }
+        self.trace.reserve_rows(rows);
     }
 
     /// Bytes the recorded trace holds.
