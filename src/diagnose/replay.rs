@@ -592,8 +592,15 @@ pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
     let mut start = initial_state(model, rec);
     start.reading_m -= sag[0];
     let c1 = cmd.get(1).copied().unwrap_or(cmd[0]);
-    let before = 2.0 * cmd[0] - c1;
     let n23 = crate::preset::ratio(model.t2_s, t3).unwrap_or(1) as usize;
+    // The command before the record ends the T2 segment before the first. Within a segment
+    // the command is linear in T3 steps, so with n23 ≥ 2 one step back along the first two
+    // samples is exact; with T2 = T3 every sample is its own segment, and a constant
+    // acceleration through the first three (an acc/dec ramp from rest) is exact instead.
+    let before = match cmd.get(2) {
+        Some(&c2) if n23 == 1 => 3.0 * cmd[0] - 3.0 * c1 + c2,
+        _ => 2.0 * cmd[0] - c1,
+    };
     let mut seg = if start.vel_mps == 0.0 {
         SegmentAcc::new(model.t2_s, before)
     } else {

@@ -100,3 +100,77 @@ fn every_shipped_preset_replays_its_own_trace() {
             .join("\n")
     );
 }
+
+/// Runs the diagnosis, quietly, on `rec` against `p`.
+fn diagnose_quietly(p: &Preset, rec: &Record) -> axisbench::diagnose::Report {
+    use axisbench::diagnose::{self, Options, Progress};
+    let cancel = std::sync::atomic::AtomicBool::new(false);
+    let quiet = |_: f64, _: &str| {};
+    let progress = Progress {
+        report: &quiet,
+        cancel: &cancel,
+    };
+    diagnose::diagnose(p, rec, None, &Options::default(), &progress).expect("diagnosis runs")
+}
+
+#[test]
+fn the_diagnosis_finds_nothing_missing_in_the_models_own_traces() {
+    let mut found = Vec::new();
+    for name in preset::SHIPPED_PRESETS {
+        let lp = preset::load_embedded(name).expect("embedded preset");
+        let p = &lp.preset;
+        let tr = simulate_trace(p, &programs(&lp), 3.0);
+        let axis = &p.axes[0].name;
+        let rec = Record::for_preset(&tr, "self.csv", p, axis).expect("record");
+        let r = diagnose_quietly(p, &rec);
+        if r.verdict != "none" {
+            found.push(format!(
+                "{name} {axis}: verdict {} ({:?})",
+                r.verdict, r.selected
+            ));
+        }
+    }
+    assert!(found.is_empty(), "{}", found.join("\n"));
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(32))]
+
+    /// Random periods (T3, T2 = n23·T3, T1 = n12·T2) and gains: as long as the loop is
+    /// stable (the machine refuses it otherwise), replaying the trace reproduces it.
+    #[test]
+    fn random_periods_and_gains_replay_exactly(
+        t3_exp in 0u32..4,
+        n23 in proptest::sample::select(vec![1u32, 2, 4, 8]),
+        n12 in proptest::sample::select(vec![1u32, 2, 4]),
+        kp_per_s in 15.0f64..80.0,
+        kv_scale in 0.5f64..1.5,
+        ki_per_s in 0.0f64..200.0,
+    ) {
+        let lp = preset::load_embedded("default.ron").expect("default");
+        let mut p = lp.preset.clone();
+        p.timing.t3_s = 0.000125 * f64::from(1u32 << t3_exp);
+        p.timing.t2_s = p.timing.t3_s * f64::from(n23);
+        p.timing.t1_s = p.timing.t2_s * f64::from(n12);
+        let s = &mut p.axes[0].servo;
+        s.kp_per_s = kp_per_s;
+        s.kv_n_s_per_m *= kv_scale;
+        s.ki_per_s = ki_per_s;
+        let mut q = p.clone();
+        q.scenario.trace_every = 1;
+        let Ok(mut m) = Machine::new(&q, &programs(&lp)) else {
+            // Unstable or otherwise refused: nothing to replay.
+            return Ok(());
+        };
+        m.run(3.0).expect("runs");
+        let mut csv = Vec::new();
+        m.trace.write_csv_to(&mut csv).expect("writes");
+        let tr = Trace::from_csv_str(&String::from_utf8(csv).expect("utf8"), "self.csv", None)
+            .expect("reads");
+        let (pos_um, force_n, first) = replay_residual(&p, &tr, "x");
+        proptest::prop_assert!(
+            pos_um <= POS_TOL_UM && force_n <= FORCE_TOL_N,
+            "pos {pos_um} µm, force {force_n} N, first divergence {first:?}"
+        );
+    }
+}
