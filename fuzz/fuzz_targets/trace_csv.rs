@@ -64,6 +64,7 @@ fuzz_target!(|data: &[u8]| {
             axis: p.axes[0].clone(),
             t3_s: T3_S,
             t2_s: T3_S,
+            t1_s: T3_S,
             pos_source: r.pos_source.unwrap_or(p.diagnose.pos_source),
             delay_s: 0.0,
             disturbance: vec![],

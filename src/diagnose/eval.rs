@@ -278,6 +278,7 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
         axis: nominal.axes[0].clone(),
         t3_s: t3,
         t2_s: nominal.timing.t2_s,
+        t1_s: nominal.timing.t1_s,
         pos_source: PosSource::Scale,
         delay_s: 0.0,
         disturbance: vec![],

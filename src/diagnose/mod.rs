@@ -366,6 +366,7 @@ pub fn diagnose(
             axis: axis_params,
             t3_s: preset.timing.t3_s,
             t2_s: preset.timing.t2_s,
+            t1_s: preset.timing.t1_s,
             pos_source: main.pos_source.unwrap_or(preset.diagnose.pos_source),
             delay_s: 0.0,
             disturbance: vec![],

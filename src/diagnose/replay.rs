@@ -503,6 +503,9 @@ pub struct Model {
     pub t3_s: f64,
     /// NC → amplifier period T2, s: the acceleration feed-forward takes one value per T2.
     pub t2_s: f64,
+    /// Interpolation period T1, s: the command is linear within a T1 period, which says how
+    /// to extrapolate it back before the record's first sample.
+    pub t1_s: f64,
     /// Which sensor the record's `pos` comes from.
     pub pos_source: PosSource,
     /// Command delay, s (fractions of a sample interpolate).
@@ -593,12 +596,14 @@ pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
     start.reading_m -= sag[0];
     let c1 = cmd.get(1).copied().unwrap_or(cmd[0]);
     let n23 = crate::preset::ratio(model.t2_s, t3).unwrap_or(1) as usize;
-    // The command before the record ends the T2 segment before the first. Within a segment
-    // the command is linear in T3 steps, so with n23 ≥ 2 one step back along the first two
-    // samples is exact; with T2 = T3 every sample is its own segment, and a constant
-    // acceleration through the first three (an acc/dec ramp from rest) is exact instead.
+    // The command before the record ends the interpolation period before the first. Within
+    // a T1 period the command is linear in T3 steps, so when a T1 holds two or more samples
+    // one step back along the first two is exact; with T1 = T3 every sample is its own
+    // period, and a constant acceleration through the first three (an acc/dec ramp from
+    // rest) is exact instead.
+    let n13 = crate::preset::ratio(model.t1_s, t3).unwrap_or(1);
     let before = match cmd.get(2) {
-        Some(&c2) if n23 == 1 => 3.0 * cmd[0] - 3.0 * c1 + c2,
+        Some(&c2) if n13 == 1 => 3.0 * cmd[0] - 3.0 * c1 + c2,
         _ => 2.0 * cmd[0] - c1,
     };
     let mut seg = if start.vel_mps == 0.0 {

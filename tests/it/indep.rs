@@ -773,6 +773,7 @@ fn clean_case_replays_through_the_project_model() {
             axis: c.preset.axes[0].clone(),
             t3_s: c.preset.timing.t3_s,
             t2_s: c.preset.timing.t2_s,
+            t1_s: c.preset.timing.t1_s,
             pos_source: c.preset.diagnose.pos_source,
             delay_s: 0.0,
             disturbance: vec![],

@@ -32,6 +32,7 @@ fn replay_residual(p: &Preset, tr: &Trace, axis: &str) -> (f64, f64, Option<usiz
         axis: a,
         t3_s: p.timing.t3_s,
         t2_s: p.timing.t2_s,
+        t1_s: p.timing.t1_s,
         pos_source: rec.pos_source.unwrap_or(p.diagnose.pos_source),
         delay_s: 0.0,
         disturbance: vec![],
