@@ -179,3 +179,63 @@ fn trace_csv_fuzz_corpus_replays_clean() {
     }
     assert!(ok > 10 && refused > 10, "{ok} accepted, {refused} refused");
 }
+
+/// Every input of the preset fuzz corpus, through the checks of fuzz/fuzz_targets/preset.rs:
+/// refused with a short message, or built and run for 1 s with finite motion.
+#[test]
+fn preset_fuzz_corpus_replays_clean() {
+    use axisbench::Machine;
+    use axisbench::preset::{self, Preset};
+    let (mut ran, mut refused) = (0, 0);
+    for (name, bytes) in corpus("preset") {
+        let Ok(text) = std::str::from_utf8(&bytes) else {
+            continue;
+        };
+        let p = match Preset::from_ron(text, "fuzz.ron") {
+            Ok(p) => p,
+            Err(e) => {
+                refused += 1;
+                assert!(e.to_string().chars().count() < 4000, "{name}");
+                continue;
+            }
+        };
+        let Some(programs) = p
+            .scenario
+            .programs
+            .iter()
+            .map(|f| preset::embedded(f).map(|t| (f.clone(), t.to_owned())))
+            .collect::<Option<Vec<_>>>()
+        else {
+            continue;
+        };
+        let mut m = match Machine::new(&p, &programs) {
+            Ok(m) => m,
+            Err(e) => {
+                refused += 1;
+                assert!(e.to_string().chars().count() < 4000, "{name}");
+                continue;
+            }
+        };
+        match m.run(1.0) {
+            Err(e) => assert!(e.to_string().chars().count() < 4000, "{name}"),
+            Ok(()) => {
+                ran += 1;
+                for s in &m.trace.signals {
+                    assert!(
+                        s.data.iter().all(|x| !x.is_infinite()),
+                        "{name}: {}",
+                        s.name
+                    );
+                    if [".cmd", ".pos", ".force"]
+                        .iter()
+                        .any(|e| s.name.ends_with(e))
+                    {
+                        assert!(s.data.iter().all(|x| x.is_finite()), "{name}: {}", s.name);
+                    }
+                }
+            }
+        }
+    }
+    // The seeds are the shipped presets, which all run.
+    assert!(ran >= 7 && refused > 0, "ran {ran}, refused {refused}");
+}
