@@ -956,7 +956,7 @@ pub fn bench_frames(n: usize) -> Result<(f64, f64, f64)> {
         let prims = ctx.tessellate(out.shapes, out.pixels_per_point);
         std::hint::black_box(prims);
         if i >= 5 {
-            times.push(t0.elapsed().as_secs_f64() * 1e3);
+            times.push(axisbench::units::s_to_ms(t0.elapsed().as_secs_f64()));
         }
     }
     times.sort_by(f64::total_cmp);

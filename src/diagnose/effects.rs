@@ -245,7 +245,9 @@ impl Effect {
                 match m.pos_source {
                     crate::preset::PosSource::MotorEncoder => {
                         e.quantize_motor = true;
-                        let counts = (a.drive.lead_mm * 1e3 / th[0]).round().max(1.0);
+                        let counts = (crate::units::mm_to_um(a.drive.lead_mm) / th[0])
+                            .round()
+                            .max(1.0);
                         e.motor_counts_per_rev = counts as u32;
                     }
                     _ => {
@@ -254,7 +256,7 @@ impl Effect {
                     }
                 }
             }
-            Effect::CommandDelay => m.delay_s += th[0] * 1e-3,
+            Effect::CommandDelay => m.delay_s += crate::units::ms_to_s(th[0]),
             Effect::ExternalDisturbance => {}
         }
     }
