@@ -8,7 +8,7 @@ use super::DiagnoseError;
 use crate::drive::{AxisLoop, LoopInput, SegmentAcc};
 use crate::plant::{Beam, PlantOut, Sensor, Start};
 use crate::preset::{AxisParams, Crossbeam, PosSource, Preset};
-use crate::trace::{AxisSignal, Trace};
+use crate::trace::{AxisSignal, Quantity, Trace};
 
 /// One axis of a measured record on the model's uniform T3 grid, in SI units.
 #[derive(Debug, Clone)]
@@ -231,7 +231,14 @@ fn required(trace: &Trace, axis: &str, sig: AxisSignal) -> Result<Vec<f64>, Stri
     })
 }
 
-/// Column `<axis>.<sig>` if recorded, in SI as the trace holds it; every value must be finite.
+/// Largest position a record may hold, m: no machine axis is a kilometre long, and the
+/// replay's plant is not meant to integrate 1e305 m (the trace fuzzer found that NaN).
+pub const MAX_RECORD_POS_M: f64 = 1e3;
+/// Largest force a record may hold, N.
+pub const MAX_RECORD_FORCE_N: f64 = 1e9;
+
+/// Column `<axis>.<sig>` if recorded, in SI as the trace holds it; every value must be finite
+/// and, for positions and forces, within what a machine axis can hold.
 fn optional(trace: &Trace, axis: &str, sig: AxisSignal) -> Result<Option<Vec<f64>>, String> {
     let Some(v) = trace.axis_values(axis, sig) else {
         return Ok(None);
@@ -239,6 +246,18 @@ fn optional(trace: &Trace, axis: &str, sig: AxisSignal) -> Result<Option<Vec<f64
     if let Some((i, x)) = v.iter().enumerate().find(|(_, x)| !x.is_finite()) {
         return Err(format!(
             "column '{}' has no finite value at data row {} ({x}); the diagnosis needs it at every sample",
+            sig.column(axis),
+            i + 1
+        ));
+    }
+    let (limit, unit) = match sig.quantity() {
+        Quantity::Length => (MAX_RECORD_POS_M, "m"),
+        Quantity::Force => (MAX_RECORD_FORCE_N, "N"),
+        _ => (f64::INFINITY, ""),
+    };
+    if let Some((i, x)) = v.iter().enumerate().find(|(_, x)| x.abs() > limit) {
+        return Err(format!(
+            "column '{}' holds {x:e} {unit} at data row {}, beyond the ±{limit:e} {unit} any machine axis can have",
             sig.column(axis),
             i + 1
         ));

@@ -239,3 +239,25 @@ fn preset_fuzz_corpus_replays_clean() {
     // The seeds are the shipped presets, which all run.
     assert!(ran >= 7 && refused > 0, "ran {ran}, refused {refused}");
 }
+
+/// A record the trace fuzzer found (fuzz/regressions/trace_csv/): a motor position of
+/// 1.43e305 m read fine and made the replay integrate to NaN. It is refused now, naming the
+/// column and row; and a record within range replays to finite numbers.
+#[test]
+fn a_record_with_an_absurd_position_is_refused_before_the_replay() {
+    use axisbench::diagnose::replay::Record;
+    use axisbench::trace::{Mapping, Trace};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fuzz/regressions/trace_csv/crash-5abdf849555c17f184472b9a97b17b30448081bc");
+    let bytes = std::fs::read(&path).expect("regression input");
+    let mapping =
+        Mapping::parse("t[s]=t_s, x.cmd[m]=qg_m, x.pos[m]=qm_m, x.force[N]=force_N").expect("map");
+    let tr = Trace::from_csv_bytes(&bytes, "crash.csv", Some(&mapping)).expect("reads");
+    let e = Record::from_trace(&tr, "crash.csv", "x", None, 0.001)
+        .expect_err("an axis 1e305 m long is refused")
+        .to_string();
+    assert!(
+        e.contains("x.") && e.contains("row") && e.contains("beyond"),
+        "{e}"
+    );
+}
