@@ -44,6 +44,16 @@ pub fn full_model_preset(n_axes: usize) -> Result<Preset, MachineError> {
     Ok(p)
 }
 
+/// The embedded default preset as shipped (the effects the numba peer models), its first
+/// axis driven by [`bench_program`]: the whole machine, NC included, on the peer's physics.
+pub fn default_model_preset() -> Result<Preset, MachineError> {
+    let mut p = preset::load_embedded("default.ron")?.preset;
+    p.axes.truncate(1);
+    p.scenario.programs = vec!["bench.ngc".into()];
+    p.scenario.duration_s = None;
+    Ok(p)
+}
+
 /// A long back-and-forth program, short and long strokes, so every effect stays active.
 pub fn bench_program(n_axes: usize) -> String {
     let letters = ['X', 'Y', 'Z'];
@@ -77,12 +87,22 @@ pub struct BenchFigure {
 
 /// Runs the full model for `axis_steps` axis-steps, best of three.
 pub fn run(n_axes: usize, axis_steps: u64, recording: bool) -> Result<BenchFigure, MachineError> {
-    let p = full_model_preset(n_axes)?;
+    run_preset(&full_model_preset(n_axes)?, axis_steps, recording)
+}
+
+/// Runs the machine of preset `p` (its program is [`bench_program`]) for `axis_steps`
+/// axis-steps, best of three.
+pub fn run_preset(
+    p: &Preset,
+    axis_steps: u64,
+    recording: bool,
+) -> Result<BenchFigure, MachineError> {
+    let n_axes = p.axes.len().max(1);
     let prog = bench_program(n_axes);
     let steps = (axis_steps / n_axes as u64).max(1);
     let mut best = f64::INFINITY;
     for _ in 0..3 {
-        let mut m = Machine::new(&p, &[("bench.ngc".into(), prog.clone())])?;
+        let mut m = Machine::new(p, &[("bench.ngc".into(), prog.clone())])?;
         m.set_recording(recording);
         let t0 = Instant::now();
         m.run_steps(steps)?;

@@ -190,8 +190,9 @@ pub enum Command {
         #[arg(long, value_name = "SAMPLES")]
         diagnose: Option<usize>,
         /// Only this figure: `step` (AxisLoop::step alone), `off` (full model, recording
-        /// off) or `on` (recording on).
-        #[arg(long, value_parser = ["step", "off", "on"])]
+        /// off), `on` (recording on) or `default` (the machine on default.ron, the peer's
+        /// physics, recording off and on).
+        #[arg(long, value_parser = ["step", "off", "on", "default"])]
         only: Option<String>,
     },
     /// Sim-to-real diagnosis: replay a measured record through the preset, find where the
@@ -864,43 +865,41 @@ fn bench(steps: u64, only: Option<&str>) -> Result<()> {
             f.axis_steps_per_s
         );
     }
-    if want("off") && !want("on") {
-        let f = axisbench::bench::run(1, steps, false)?;
+    let full = |n: usize, n_steps: u64, rec: bool| -> Result<()> {
+        let f = axisbench::bench::run(n, n_steps, rec)?;
         say!(
-            "axes=1 recording=off steps={} axis_steps_per_s={:.0}",
-            f.steps,
-            f.axis_steps_per_s
-        );
-        return Ok(());
-    }
-    if want("on") && !want("off") {
-        let f = axisbench::bench::run(1, steps, true)?;
-        say!(
-            "axes=1 recording=on steps={} axis_steps_per_s={:.0}",
-            f.steps,
-            f.axis_steps_per_s
-        );
-        return Ok(());
-    }
-    if only.is_some() {
-        return Ok(());
-    }
-    for n in [1, 3] {
-        let f = axisbench::bench::run(n, steps, false)?;
-        say!(
-            "axes={} recording=off steps={} axis_steps_per_s={:.0}",
+            "axes={} recording={} steps={} axis_steps_per_s={:.0}",
             f.n_axes,
+            if rec { "on" } else { "off" },
+            f.steps,
+            f.axis_steps_per_s
+        );
+        Ok(())
+    };
+    match only {
+        Some("off") => return full(1, steps, false),
+        Some("on") => return full(1, steps, true),
+        Some("step") => return Ok(()),
+        _ => {}
+    }
+    if only.is_none() {
+        full(1, steps, false)?;
+        full(3, steps, false)?;
+        full(1, steps / 4, true)?;
+    }
+    let p = axisbench::bench::default_model_preset()?;
+    for rec in [false, true] {
+        let f = axisbench::bench::run_preset(&p, if rec { steps / 4 } else { steps }, rec)?;
+        say!(
+            "machine on default.ron (the peer's physics + NC) recording={} steps={} axis_steps_per_s={:.0}",
+            if rec { "on" } else { "off" },
             f.steps,
             f.axis_steps_per_s
         );
     }
-    let f = axisbench::bench::run(1, steps / 4, true)?;
-    say!(
-        "axes=1 recording=on steps={} axis_steps_per_s={:.0}",
-        f.steps,
-        f.axis_steps_per_s
-    );
-    let f = axisbench::bench::run(1, steps, false)?;
-    say!("axis_steps_per_s={:.0}", f.axis_steps_per_s);
+    if only.is_none() {
+        let f = axisbench::bench::run(1, steps, false)?;
+        say!("axis_steps_per_s={:.0}", f.axis_steps_per_s);
+    }
     Ok(())
 }

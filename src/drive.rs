@@ -116,16 +116,28 @@ impl AxisLoop {
     /// One T3 period. Returns the force the motor put on the load.
     #[inline]
     pub fn step(&mut self, inp: &LoopInput) -> f64 {
-        self.step_inline(inp)
+        if self.is_plain() {
+            self.step_inline::<false>(inp)
+        } else {
+            self.step_inline::<true>(inp)
+        }
     }
 
-    /// The T3 step itself: servo-stage compensations, amplifier, mechanics.
+    /// No servo-stage compensation and a plain plant ([`AxisPlant::is_plain`]): the step
+    /// may leave the rarely used effects out of its code.
+    fn is_plain(&self) -> bool {
+        self.comps.is_empty() && self.plant.is_plain()
+    }
+
+    /// The T3 step itself: servo-stage compensations, amplifier, mechanics. `FULL` false
+    /// compiles the step for a plain axis ([`AxisLoop::is_plain`]); it computes the same
+    /// numbers, with less code in the loop.
     #[inline(always)]
-    fn step_inline(&mut self, inp: &LoopInput) -> f64 {
+    fn step_inline<const FULL: bool>(&mut self, inp: &LoopInput) -> f64 {
         let o = *self.plant.out();
         let fb = feedback_of(self.servo.feedback(), &o);
         let mut add = ServoCompOut::default();
-        if !self.comps.is_empty() {
+        if FULL && !self.comps.is_empty() {
             let ctx = ServoCompCtx {
                 t_s: inp.t_s,
                 t3_s: self.t3_s,
@@ -152,7 +164,7 @@ impl AxisLoop {
             force_ff_n: add.torque_nm * self.f_per_t,
             acc_cmd_mps2: inp.acc_cmd_mps2,
         });
-        self.plant.step(force, inp.ext_force_n);
+        self.plant.step_with::<FULL>(force, inp.ext_force_n);
         self.sample = Sample {
             plant: PlantOut {
                 friction_n: self.plant.out().friction_n,
@@ -172,9 +184,22 @@ impl AxisLoop {
     /// for: the machine runs each axis through its T2 period this way, the replay a whole
     /// record.
     #[inline]
-    pub fn run(&mut self, inputs: &[LoopInput], mut sink: impl FnMut(usize, &Sample)) {
+    pub fn run(&mut self, inputs: &[LoopInput], sink: impl FnMut(usize, &Sample)) {
+        if self.is_plain() {
+            self.run_with::<false>(inputs, sink);
+        } else {
+            self.run_with::<true>(inputs, sink);
+        }
+    }
+
+    #[inline(always)]
+    fn run_with<const FULL: bool>(
+        &mut self,
+        inputs: &[LoopInput],
+        mut sink: impl FnMut(usize, &Sample),
+    ) {
         for (j, inp) in inputs.iter().enumerate() {
-            self.step_inline(inp);
+            self.step_inline::<FULL>(inp);
             sink(j, &self.sample);
         }
     }

@@ -17,7 +17,7 @@ use crate::nc::Channel;
 use crate::nc::program::{self, ProgramError};
 use crate::plant::{Beam, Start};
 use crate::preset::{FieldError, LoadedPreset, Mode, PosSource, Preset, PresetError};
-use crate::trace::{AxisSignal, Trace};
+use crate::trace::{AxisSignal, Prefault, Trace};
 use crate::units::mm_to_m;
 
 /// Why a machine could not be built or changed.
@@ -156,8 +156,17 @@ impl AxisRt {
     }
 }
 
+/// Rows the recorder stages before it writes them to the trace's columns.
+const STAGE_ROWS: usize = 128;
+
 struct Recorder {
     every: u32,
+    /// Columns of the trace (row length).
+    ncols: usize,
+    /// Staged rows, row-major, [`STAGE_ROWS`] × `ncols`.
+    stage: Vec<f64>,
+    /// Rows in `stage` not yet in the trace.
+    staged: usize,
     axis_cols: Vec<usize>,
     temp_cols: Vec<usize>,
     ambient_col: usize,
@@ -204,6 +213,10 @@ pub struct Machine {
     /// The recorded trace (empty while recording is off).
     pub trace: Trace,
     rec: Option<Recorder>,
+    /// Inside [`Machine::run`] / [`Machine::run_steps`]: trace rows may wait in the stage.
+    bulk: bool,
+    /// Faults in the reserved trace memory beside the model (see [`Prefault`]).
+    prefault: Option<Prefault>,
     end_k: Option<u64>,
 }
 
@@ -278,6 +291,8 @@ impl Machine {
             x_pos: vec![0.0; n_ax],
             trace: Trace::new(),
             rec: None,
+            bulk: false,
+            prefault: None,
             end_k: None,
         };
         for (i, a) in m.axes.iter().enumerate() {
@@ -466,6 +481,7 @@ impl Machine {
 
     /// Turns trace recording on (a fresh trace) or off (benchmarks, batch fitting).
     pub fn set_recording(&mut self, on: bool) {
+        self.prefault = None;
         self.trace = Trace::new();
         if !on {
             self.rec = None;
@@ -521,8 +537,12 @@ impl Machine {
                 tr.add_signal(&name, s.quantity.si_unit())
             })
             .collect();
+        let ncols = tr.signals.len();
         self.rec = Some(Recorder {
             every: self.preset.scenario.trace_every.max(1),
+            ncols,
+            stage: vec![0.0; STAGE_ROWS * ncols],
+            staged: 0,
             axis_cols,
             temp_cols,
             ambient_col,
@@ -555,6 +575,14 @@ impl Machine {
     /// Runs until [`Machine::done`] or `max_s` of machine time, whichever is first. Stops
     /// with an error when the model diverges or the trace outgrows its memory limit.
     pub fn run(&mut self, max_s: f64) -> Result<(), MachineError> {
+        self.bulk = true;
+        let r = self.run_staged(max_s);
+        self.bulk = false;
+        self.flush_rows();
+        r
+    }
+
+    fn run_staged(&mut self, max_s: f64) -> Result<(), MachineError> {
         let max_k = (max_s / self.t3_s).ceil() as u64;
         // A program-driven run ends when the program does, unknown here: its trace grows.
         if let Some(d) = self.preset.scenario.duration_s {
@@ -573,6 +601,14 @@ impl Machine {
 
     /// Runs `n` T3 steps, with the checks of [`Machine::run`].
     pub fn run_steps(&mut self, n: u64) -> Result<(), MachineError> {
+        self.bulk = true;
+        let r = self.run_steps_staged(n);
+        self.bulk = false;
+        self.flush_rows();
+        r
+    }
+
+    fn run_steps_staged(&mut self, n: u64) -> Result<(), MachineError> {
         self.reserve_rows(n);
         let check = u64::from(self.n23).max(64);
         for _ in 0..n {
@@ -594,7 +630,10 @@ impl Machine {
         let rows = usize::try_from(steps / u64::from(rec.every) + 1)
             .unwrap_or(usize::MAX)
             .min(room);
+        // Stop the previous thread before the columns can move.
+        self.prefault = None;
         self.trace.reserve_rows(rows);
+        self.prefault = Prefault::start(self.trace.spare_ranges());
     }
 
     /// Bytes the recorded trace holds.
@@ -784,54 +823,34 @@ impl Machine {
         }
     }
 
+    /// Writes the trace row of the step just taken into the recorder's stage; the stage
+    /// goes to the trace's columns every [`STAGE_ROWS`] rows inside [`Machine::run`] and
+    /// [`Machine::run_steps`], and at once after a single [`Machine::step`].
     fn record(&mut self) {
         let Some(rec) = &mut self.rec else { return };
         if !(self.k - 1).is_multiple_of(rec.every as u64) {
             return;
         }
-        let tr = &mut self.trace;
+        let n = rec.ncols;
+        let at = rec.staged * n;
+        let row = &mut rec.stage[at..at + n];
         // The row is the instant t_k at the start of the step just taken.
-        tr.signals[0].data.push((self.k - 1) as f64 * self.t3_s);
+        row[0] = (self.k - 1) as f64 * self.t3_s;
         for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
-            let s = a.axis_loop.sample();
-            let o = &s.plant;
-            let fpt = a.axis_loop.force_per_torque();
-            for (i, sig) in AxisSignal::RECORDED.into_iter().enumerate() {
-                let v = match sig {
-                    AxisSignal::Cmd => s.cmd_raw_m,
-                    AxisSignal::CmdComp => s.cmd_m,
-                    AxisSignal::Comp => s.cmd_nc_m - s.cmd_raw_m,
-                    AxisSignal::MotorPos => o.motor_pos_m,
-                    AxisSignal::Pos => a.sample_pos_m,
-                    AxisSignal::Err => s.cmd_raw_m - a.sample_pos_m,
-                    AxisSignal::Ferr => s.servo.ferr_m,
-                    AxisSignal::Vel => o.vel_mps,
-                    AxisSignal::TorqueCmd => s.servo.force_cmd_n / fpt,
-                    AxisSignal::Torque => s.servo.force_n / fpt,
-                    AxisSignal::Force => s.servo.force_n,
-                    AxisSignal::Friction => o.friction_n,
-                    AxisSignal::Gap => o.gap_m,
-                    AxisSignal::Thermal => o.thermal_m,
-                    AxisSignal::LeadErr => o.lead_err_m,
-                    AxisSignal::Sag => a.sample_pos_m - o.pos_m,
-                    // Not recorded per axis by the machine (compensations add theirs).
-                    _ => f64::NAN,
-                };
-                tr.signals[base + i].data.push(v);
-            }
+            // `map` over the constant list unrolls, so each column gets its expression
+            // without a jump per signal.
+            let vals = AxisSignal::RECORDED.map(|sig| recorded_value(sig, a));
+            row[base..base + vals.len()].copy_from_slice(&vals);
         }
         for (a, &c) in self.axes.iter().zip(&rec.temp_cols) {
-            tr.signals[c]
-                .data
-                .push(a.axis_loop.plant().thermal().temp_c);
+            row[c] = a.axis_loop.plant().thermal().temp_c;
         }
-        let amb = self
+        row[rec.ambient_col] = self
             .axes
             .first()
             .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
-        tr.signals[rec.ambient_col].data.push(amb);
         for (ch, &c) in self.channels.iter().zip(&rec.mode_cols) {
-            tr.signals[c].data.push(ch.mode.as_f64());
+            row[c] = ch.mode.as_f64();
         }
         if !rec.comp_cols.is_empty() {
             let mut at = 0;
@@ -851,9 +870,26 @@ impl Machine {
                 at += n;
             }
             for (&col, &v) in rec.comp_cols.iter().zip(&rec.comp_vals) {
-                tr.signals[col].data.push(v);
+                row[col] = v;
             }
         }
+        rec.staged += 1;
+        if !self.bulk || rec.staged == STAGE_ROWS {
+            self.flush_rows();
+        }
+    }
+
+    /// Appends the staged rows to the trace's columns, one column at a time: a long run
+    /// then writes each column in bursts instead of touching every column every row (the
+    /// writes per row went to 21 places in memory, and recording cost three times the model).
+    fn flush_rows(&mut self) {
+        let Some(rec) = &mut self.rec else { return };
+        let (n, rows) = (rec.ncols, rec.staged);
+        for (c, sig) in self.trace.signals.iter_mut().enumerate().take(n) {
+            let stage = &rec.stage;
+            sig.data.extend((0..rows).map(|r| stage[r * n + c]));
+        }
+        rec.staged = 0;
     }
 }
 
@@ -927,6 +963,34 @@ fn new_axis(
         sag_m: 0.0,
         pos_m: pos,
         sample_pos_m: pos,
+    }
+}
+
+/// The value of `sig` in axis `a`'s trace row of the latest period, SI.
+#[inline(always)]
+fn recorded_value(sig: AxisSignal, a: &AxisRt) -> f64 {
+    let s = a.axis_loop.sample();
+    let o = &s.plant;
+    let fpt = a.axis_loop.force_per_torque();
+    match sig {
+        AxisSignal::Cmd => s.cmd_raw_m,
+        AxisSignal::CmdComp => s.cmd_m,
+        AxisSignal::Comp => s.cmd_nc_m - s.cmd_raw_m,
+        AxisSignal::MotorPos => o.motor_pos_m,
+        AxisSignal::Pos => a.sample_pos_m,
+        AxisSignal::Err => s.cmd_raw_m - a.sample_pos_m,
+        AxisSignal::Ferr => s.servo.ferr_m,
+        AxisSignal::Vel => o.vel_mps,
+        AxisSignal::TorqueCmd => s.servo.force_cmd_n / fpt,
+        AxisSignal::Torque => s.servo.force_n / fpt,
+        AxisSignal::Force => s.servo.force_n,
+        AxisSignal::Friction => o.friction_n,
+        AxisSignal::Gap => o.gap_m,
+        AxisSignal::Thermal => o.thermal_m,
+        AxisSignal::LeadErr => o.lead_err_m,
+        AxisSignal::Sag => a.sample_pos_m - o.pos_m,
+        // Not recorded per axis by the machine (compensations add theirs).
+        _ => f64::NAN,
     }
 }
 

@@ -105,8 +105,8 @@ impl FrictionModel {
     /// The drive force arrives last in every period, so it enters last: everything else
     /// (the known forces, the kinetic friction, which depends on the previous velocity) is
     /// summed while the amplifier still computes.
-    #[inline]
-    pub fn step(
+    #[inline(always)]
+    pub fn step<const FULL: bool>(
         &self,
         body: &Body,
         v_mps: f64,
@@ -120,14 +120,21 @@ impl FrictionModel {
         if !self.enabled {
             return (v_free, 0.0);
         }
-        let fk = self.kinetic_n(v_mps.abs(), scale, add_n);
+        // Without Stribeck and stroke friction (`FULL` false) the level is Coulomb's,
+        // exactly what the general expressions give with scale 1 and nothing added.
+        let (fk, f_static) = if FULL {
+            let fk = self.kinetic_n(v_mps.abs(), scale, add_n);
+            let f_static = if self.stribeck {
+                scale * self.static_n
+            } else {
+                scale * self.coulomb_n
+            } + add_n;
+            (fk, f_static)
+        } else {
+            (self.coulomb_n, self.coulomb_n)
+        };
         let kin = body.kin_per_n * fk;
         let f_stop = -body.m_over_h * v_free;
-        let f_static = if self.stribeck {
-            scale * self.static_n
-        } else {
-            scale * self.coulomb_n
-        } + add_n;
         if f_stop.abs() <= f_static {
             return (0.0, f_stop);
         }
@@ -279,7 +286,7 @@ impl ScrewThermal {
         }
     }
 
-    #[inline]
+    #[inline(always)]
     fn step(&mut self, fric_power_w: f64, speed_mps: f64, dt_s: f64) {
         if !self.enabled {
             return;
@@ -313,11 +320,16 @@ struct LeadErr {
 }
 
 impl LeadErr {
-    #[inline]
+    #[inline(always)]
     fn at(&self, x_m: f64) -> f64 {
         if !self.enabled {
             return 0.0;
         }
+        self.at_enabled(x_m)
+    }
+
+    #[inline]
+    fn at_enabled(&self, x_m: f64) -> f64 {
         // One lookup per T3 instead of a libm sin of a large argument (x/period reaches the
         // hundreds on a long axis); see `sin_table` for the error bound.
         let turns = x_m * self.inv_period_per_m;
@@ -462,6 +474,8 @@ pub struct AxisPlant {
     v_t: f64,
     /// +1/−1: which flank is in contact (RigidPlay); 0: inside the gap.
     contact: i8,
+    /// Only the common effects are on (see [`AxisPlant::is_plain`]).
+    plain: bool,
     out: PlantOut,
 }
 
@@ -500,6 +514,7 @@ impl AxisPlant {
             x_t: initial_pos_m,
             v_t: 0.0,
             contact: 1,
+            plain: false,
             out: PlantOut::default(),
         };
         p.retune(a);
@@ -533,7 +548,7 @@ impl AxisPlant {
         self.x_m = x_t + flank;
         self.v_m = start.vel_mps;
         self.v_t = start.vel_mps;
-        self.refresh_out(0.0);
+        self.refresh_out::<true>(0.0);
     }
 
     /// The mechanical state.
@@ -552,7 +567,7 @@ impl AxisPlant {
         self.v_m = s.v_m;
         self.x_t = s.x_t;
         self.v_t = s.v_t;
-        self.refresh_out(self.out.friction_n);
+        self.refresh_out::<true>(self.out.friction_n);
     }
 
     /// What the sensors and the trace see after the latest step.
@@ -652,66 +667,148 @@ impl AxisPlant {
         } else {
             0.0
         };
+        self.plain = self.plain_now();
     }
 
     /// Advances the mechanics by one T3 under the motor force `force_n` (load side) and an
     /// external force `ext_n` on the table (a disturbance; 0 on the machine).
     #[inline]
     pub fn step(&mut self, force_n: f64, ext_n: f64) {
-        let h = self.h_s;
+        self.step_with::<true>(force_n, ext_n);
+    }
+
+    /// Whether this plant uses only the common effects: a rigid drive with or without
+    /// play, Coulomb + viscous friction, motor-encoder quantization and screw growth. Then
+    /// [`AxisPlant::step_with`] may run with `FULL` false.
+    pub fn is_plain(&self) -> bool {
+        self.plain
+    }
+
+    fn plain_now(&self) -> bool {
+        !self.stroke.enabled
+            && !self.lead.enabled
+            && self.scale_q_m.is_none()
+            && !self.friction.stribeck
+            && !matches!(self.mech, Mech::TwoMass { .. })
+    }
+
+    /// [`AxisPlant::step`], with the rarely used effects (Stribeck, stroke friction, lead
+    /// error, scale quantization, two-mass coupling) compiled in only when `FULL`. Leaving
+    /// out code that does nothing for a plain axis halves the work of its T3 step. The
+    /// result is the same to the bit: a plant that is not [`AxisPlant::is_plain`] takes the
+    /// full step either way.
+    #[inline(always)]
+    pub fn step_with<const FULL: bool>(&mut self, force_n: f64, ext_n: f64) {
+        if !FULL && !self.plain {
+            self.step_full(force_n, ext_n);
+            return;
+        }
         let (scale, add) = (self.stroke.scale, self.stroke.add_n);
         let f_load = self.f_grav_n + ext_n;
-        let mut fric = 0.0;
-        for _ in 0..self.n_sub {
-            fric = match self.mech {
-                Mech::Rigid => {
-                    let (v, f) =
-                        self.friction
-                            .step(&self.body_all, self.v_t, f_load, force_n, scale, add);
-                    self.v_t = v;
-                    self.v_m = v;
-                    self.x_t += h * v;
-                    self.x_m = self.x_t;
-                    f
+        // One match per T3, the sub-step loop inside each arm: the mechanism never changes
+        // between sub-steps.
+        let fric = match self.mech {
+            Mech::Rigid => self.substeps_rigid::<FULL>(force_n, f_load, scale, add),
+            Mech::RigidPlay => {
+                let mut fric = 0.0;
+                for _ in 0..self.n_sub {
+                    fric = self.step_play::<FULL>(force_n, f_load, self.h_s, scale, add);
                 }
-                Mech::RigidPlay => self.step_play(force_n, f_load, h, scale, add),
-                Mech::TwoMass {
-                    k_n_per_m,
-                    c_n_s_per_m,
-                } => {
-                    let gap = self.x_m - self.x_t;
-                    let defl = dead_zone(gap, self.half_gap_m);
-                    let f_s = if defl != 0.0 || self.half_gap_m == 0.0 {
-                        k_n_per_m * defl + c_n_s_per_m * (self.v_m - self.v_t)
-                    } else {
-                        0.0
-                    };
-                    self.v_m += self.motor_h_over_m * (force_n - f_s);
-                    let (v, f) =
-                        self.friction
-                            .step(&self.body_table, self.v_t, f_load, f_s, scale, add);
-                    self.v_t = v;
-                    self.x_m += h * self.v_m;
-                    self.x_t += h * self.v_t;
-                    f
-                }
-            };
+                fric
+            }
+            Mech::TwoMass {
+                k_n_per_m,
+                c_n_s_per_m,
+            } if FULL => {
+                self.substeps_two_mass(force_n, f_load, scale, add, k_n_per_m, c_n_s_per_m)
+            }
+            Mech::TwoMass { .. } => 0.0,
+        };
+        if FULL && self.stroke.enabled {
+            self.stroke.observe(self.x_t, self.v_t);
         }
-        self.stroke.observe(self.x_t, self.v_t);
         self.thermal
             .step((fric * self.v_t).abs(), self.v_t.abs(), self.t3_s);
-        self.refresh_out(fric);
+        self.refresh_out::<FULL>(fric);
+    }
+
+    #[inline(never)]
+    fn step_full(&mut self, force_n: f64, ext_n: f64) {
+        self.step_with::<true>(force_n, ext_n);
+    }
+
+    /// The rigid drive without play: one body.
+    #[inline(always)]
+    fn substeps_rigid<const FULL: bool>(
+        &mut self,
+        force_n: f64,
+        f_load: f64,
+        scale: f64,
+        add: f64,
+    ) -> f64 {
+        let mut fric = 0.0;
+        for _ in 0..self.n_sub {
+            let (v, f) =
+                self.friction
+                    .step::<FULL>(&self.body_all, self.v_t, f_load, force_n, scale, add);
+            self.v_t = v;
+            self.v_m = v;
+            self.x_t += self.h_s * v;
+            self.x_m = self.x_t;
+            fric = f;
+        }
+        fric
+    }
+
+    /// Motor and table joined by a spring and damper, with an optional dead zone.
+    #[inline(always)]
+    fn substeps_two_mass(
+        &mut self,
+        force_n: f64,
+        f_load: f64,
+        scale: f64,
+        add: f64,
+        k_n_per_m: f64,
+        c_n_s_per_m: f64,
+    ) -> f64 {
+        let h = self.h_s;
+        let mut fric = 0.0;
+        for _ in 0..self.n_sub {
+            let gap = self.x_m - self.x_t;
+            let defl = dead_zone(gap, self.half_gap_m);
+            let f_s = if defl != 0.0 || self.half_gap_m == 0.0 {
+                k_n_per_m * defl + c_n_s_per_m * (self.v_m - self.v_t)
+            } else {
+                0.0
+            };
+            self.v_m += self.motor_h_over_m * (force_n - f_s);
+            let (v, f) =
+                self.friction
+                    .step::<true>(&self.body_table, self.v_t, f_load, f_s, scale, add);
+            self.v_t = v;
+            self.x_m += h * self.v_m;
+            self.x_t += h * self.v_t;
+            fric = f;
+        }
+        fric
     }
 
     /// Rigid drive with play: one body while a flank transmits force, two bodies in the gap,
     /// an inelastic impact when the gap closes. `f_load_n` acts on the table.
-    #[inline]
-    fn step_play(&mut self, force_n: f64, f_load_n: f64, h: f64, scale: f64, add: f64) -> f64 {
+    #[inline(always)]
+    fn step_play<const FULL: bool>(
+        &mut self,
+        force_n: f64,
+        f_load_n: f64,
+        h: f64,
+        scale: f64,
+        add: f64,
+    ) -> f64 {
         let b2 = self.half_gap_m;
         if self.contact != 0 {
             let (v, f) =
                 self.friction
-                    .step(&self.body_all, self.v_t, f_load_n, force_n, scale, add);
+                    .step::<FULL>(&self.body_all, self.v_t, f_load_n, force_n, scale, add);
             // Force the motor flank must exert on the table for it to share this motion.
             let f_contact = self.body_table.m_over_h * (v - self.v_t) - f_load_n - f;
             if f_contact * self.contact as f64 >= 0.0 {
@@ -725,9 +822,9 @@ impl AxisPlant {
         }
         self.v_m += self.motor_h_over_m * force_n;
         self.x_m += h * self.v_m;
-        let (v, f) = self
-            .friction
-            .step(&self.body_table, self.v_t, f_load_n, 0.0, scale, add);
+        let (v, f) =
+            self.friction
+                .step::<FULL>(&self.body_table, self.v_t, f_load_n, 0.0, scale, add);
         self.v_t = v;
         self.x_t += h * v;
         let gap = self.x_m - self.x_t;
@@ -748,16 +845,20 @@ impl AxisPlant {
         f
     }
 
-    #[inline]
-    fn refresh_out(&mut self, fric_n: f64) {
+    #[inline(always)]
+    fn refresh_out<const FULL: bool>(&mut self, fric_n: f64) {
         let thermal = self.thermal.elongation_m(self.x_t);
-        let lead = self.lead.at(self.x_t);
+        let lead = if FULL { self.lead.at(self.x_t) } else { 0.0 };
         let pos = self.x_t + thermal + lead;
         self.out = PlantOut {
             motor_pos_m: self.x_m,
             motor_enc_m: quantize(self.x_m, self.motor_q_m),
             pos_m: pos,
-            scale_m: quantize(pos, self.scale_q_m),
+            scale_m: if FULL {
+                quantize(pos, self.scale_q_m)
+            } else {
+                pos
+            },
             vel_mps: self.v_t,
             friction_n: fric_n,
             gap_m: self.x_m - self.x_t,

@@ -182,7 +182,7 @@ impl Servo {
     /// this period's sensor readings is known a period ahead, so it is summed first and the
     /// readings enter last: the feedback → force path, which every period of the loop waits
     /// on, is one product and one sum long.
-    #[inline]
+    #[inline(always)]
     pub fn step(&mut self, inp: &ServoInput) -> f64 {
         let g = &self.g;
         let st = &mut self.state;

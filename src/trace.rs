@@ -346,6 +346,18 @@ impl Trace {
         }
     }
 
+    /// The address ranges of every column's unused capacity, as (start, length in bytes),
+    /// for [`Prefault`]. Addresses only: nothing is read or written through them.
+    pub fn spare_ranges(&mut self) -> Vec<(usize, usize)> {
+        self.signals
+            .iter_mut()
+            .map(|s| {
+                let spare = s.data.spare_capacity_mut();
+                (spare.as_mut_ptr() as usize, std::mem::size_of_val(spare))
+            })
+            .collect()
+    }
+
     /// Drops all samples, keeping the columns (live plots reuse the buffer).
     pub fn clear(&mut self) {
         for s in &mut self.signals {
@@ -384,3 +396,95 @@ fn advise_huge_pages(v: &mut Vec<f64>) {
 
 #[cfg(not(target_os = "linux"))]
 fn advise_huge_pages(_v: &mut Vec<f64>) {}
+
+/// Faults in reserved trace memory on another core while the model runs.
+///
+/// A recorded run appends to hundreds of MB of fresh memory, and the kernel zeroes every
+/// page on its first touch; on these machines that zeroing took more time than the model
+/// itself. This thread asks the kernel to fault the reserved pages in ahead of the writer
+/// (`MADV_POPULATE_WRITE`), chunk by chunk in the order the rows are written, so that the
+/// zeroing runs beside the model instead of inside it.
+///
+/// It is advice only: the thread never reads or writes the memory, populating pages never
+/// changes what they hold, and a range that was freed meanwhile makes the call fail
+/// harmlessly. Dropping the handle stops the thread and waits for it (at most one chunk).
+pub struct Prefault {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+/// Below this much reserved memory a thread is not worth starting.
+const PREFAULT_MIN_BYTES: usize = 32 * 1024 * 1024;
+
+/// Bytes of each column populated per round (one huge page).
+const PREFAULT_CHUNK_BYTES: usize = 2 * 1024 * 1024;
+
+impl Prefault {
+    /// Starts faulting in `ranges` (from [`Trace::spare_ranges`]), or returns `None` when
+    /// they are too small to bother or the platform has no such call.
+    pub fn start(ranges: Vec<(usize, usize)>) -> Option<Prefault> {
+        let total: usize = ranges.iter().map(|r| r.1).sum();
+        if total < PREFAULT_MIN_BYTES || !cfg!(target_os = "linux") {
+            return None;
+        }
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = stop.clone();
+        let handle = std::thread::Builder::new()
+            .name("trace-prefault".into())
+            .spawn(move || populate_rounds(&ranges, &flag))
+            .ok()?;
+        Some(Prefault {
+            stop,
+            handle: Some(handle),
+        })
+    }
+}
+
+impl Drop for Prefault {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            // The thread only makes system calls; a panic there is not ours to report.
+            let _ = h.join();
+        }
+    }
+}
+
+/// Populates every range chunk by chunk, all columns' first chunks first.
+fn populate_rounds(ranges: &[(usize, usize)], stop: &std::sync::atomic::AtomicBool) {
+    let longest = ranges.iter().map(|r| r.1).max().unwrap_or(0);
+    let mut off = 0;
+    while off < longest {
+        for &(start, len) in ranges {
+            if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                return;
+            }
+            if off < len {
+                populate(start + off, PREFAULT_CHUNK_BYTES.min(len - off));
+            }
+        }
+        off += PREFAULT_CHUNK_BYTES;
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn populate(start: usize, len: usize) {
+    // madvise wants a page-aligned start; the part of the first page before `start` belongs
+    // to the same allocation or to the allocator's header, and populating it changes nothing.
+    const PAGE: usize = 4096;
+    let first = start / PAGE * PAGE;
+    // SAFETY: MADV_POPULATE_WRITE faults pages in as a write would, without writing: no
+    // memory is read or changed, so no Rust reference is affected. If the range was freed
+    // meanwhile, the kernel refuses the call (ENOMEM/EFAULT) or populates pages of the new
+    // mapping, which again changes nothing they hold. The result is advice; it is ignored.
+    unsafe {
+        libc::madvise(
+            first as *mut libc::c_void,
+            len + (start - first),
+            libc::MADV_POPULATE_WRITE,
+        );
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn populate(_start: usize, _len: usize) {}

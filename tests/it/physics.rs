@@ -407,3 +407,107 @@ fn stability_check_rejects_an_unstable_loop_and_accepts_the_presets() {
         "an unstable loop stayed bounded: {r:?}"
     );
 }
+
+/// A servo-stage compensation that adds nothing: with it installed the axis is not plain,
+/// so its loop takes the full step.
+struct Nothing;
+
+impl axisbench::comp::ServoComp for Nothing {
+    fn name(&self) -> &str {
+        "nothing"
+    }
+    fn axis(&self) -> usize {
+        0
+    }
+    fn step(&mut self, _: &axisbench::comp::ServoCompCtx, _: &mut axisbench::comp::ServoCompOut) {}
+    fn signals(&self) -> Vec<axisbench::comp::CompSignal> {
+        vec![]
+    }
+    fn values(&self, _: &mut [f64]) {}
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
+/// The plain step (the rarely used effects compiled out) is the full step to the bit, on the
+/// inputs the default program gives the default preset's X axis.
+#[test]
+fn the_plain_step_computes_what_the_full_step_computes() {
+    use axisbench::drive::AxisLoop;
+    use axisbench::plant::Start;
+    let lp = axisbench::preset::load_embedded("default.ron").expect("default preset");
+    let p = &lp.preset;
+    let programs = vec![(
+        "default.ngc".to_owned(),
+        lp.program_text("default.ngc").expect("program"),
+    )];
+    let inputs = axisbench::bench::recorded_inputs(p, &programs).expect("inputs");
+    assert!(inputs.len() > 50_000, "{} inputs", inputs.len());
+    let a = &p.axes[0];
+    let x0 = inputs[0].cmd_raw_m;
+    let start = Start::at_rest(a.servo.feedback.into(), x0);
+    let mut plain = AxisLoop::new(a, p.timing.t3_s, start, x0, x0, vec![]);
+    let mut full = AxisLoop::new(a, p.timing.t3_s, start, x0, x0, vec![Box::new(Nothing)]);
+    assert!(
+        plain.plant().is_plain(),
+        "default.ron's X axis should be plain"
+    );
+    let (mut a_rows, mut b_rows) = (Vec::new(), Vec::new());
+    plain.run(&inputs, |_, s| {
+        a_rows.push([
+            s.plant.pos_m,
+            s.plant.motor_enc_m,
+            s.servo.force_n,
+            s.plant.friction_n,
+        ])
+    });
+    full.run(&inputs, |_, s| {
+        b_rows.push([
+            s.plant.pos_m,
+            s.plant.motor_enc_m,
+            s.servo.force_n,
+            s.plant.friction_n,
+        ])
+    });
+    let moved = a_rows.iter().map(|r| (r[0] - x0).abs()).fold(0.0, f64::max);
+    assert!(moved > 0.05, "the axis moved only {moved} m");
+    for (k, (x, y)) in a_rows.iter().zip(&b_rows).enumerate() {
+        let same = x.iter().zip(y).all(|(u, v)| u.to_bits() == v.to_bits());
+        assert!(same, "row {k}: plain {x:?} vs full {y:?}");
+    }
+}
+
+/// `Machine::run` stages trace rows and writes them in bursts; stepping one T3 at a time
+/// writes each row at once. Both give the same trace, bit for bit.
+#[test]
+fn a_staged_run_records_the_trace_that_single_steps_record() {
+    let lp = axisbench::preset::load_embedded("default.ron").expect("default preset");
+    let mut a = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+    let mut b = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+    a.set_recording(true);
+    b.set_recording(true);
+    a.run(1.0).expect("run");
+    while b.k < a.k {
+        b.step();
+    }
+    // An odd number of rows, so the last stage was partly filled.
+    assert!(
+        a.trace.len() > 7_000 && !a.trace.len().is_multiple_of(128),
+        "{}",
+        a.trace.len()
+    );
+    assert_eq!(a.trace.signals.len(), b.trace.signals.len());
+    for (x, y) in a.trace.signals.iter().zip(&b.trace.signals) {
+        assert_eq!(x.name, y.name);
+        assert_eq!(x.data.len(), y.data.len(), "{}", x.name);
+        let same = x
+            .data
+            .iter()
+            .zip(&y.data)
+            .all(|(u, v)| u.to_bits() == v.to_bits());
+        assert!(same, "column {} differs", x.name);
+    }
+}
