@@ -6,6 +6,7 @@
 //! explains) and adding it shrinks the held-out residual. Shrink alone let a delay or a
 //! compliance absorb any small mismatch; a signature alone says nothing about size.
 
+mod disturbance;
 mod friction;
 mod special;
 
