@@ -190,6 +190,63 @@ fn emps_pulses_are_found_as_a_one_second_square_wave_without_the_pulse_column() 
     );
 }
 
+/// A force added to the amplifier's output moves the axis exactly as the same force on the
+/// table does; only the force channel differs, by that force (it records the amplifier's
+/// output). This is what tells the EMPS pulses (injected into the drive's command) from a
+/// push on the table.
+#[test]
+fn a_force_in_the_amplifiers_output_moves_the_axis_like_one_on_the_table() {
+    use axisbench::diagnose::replay::{Disturbance, Model, simulate};
+    let lp = preset::load("presets/emps.ron").expect("emps preset");
+    let p = &lp.preset;
+    let n = 2000;
+    let rec = Record {
+        axis: "x".into(),
+        t3_s: p.timing.t3_s,
+        t0_s: 0.0,
+        cmd_m: (0..n).map(|k| 1e-5 * k as f64).collect(),
+        comp_m: None,
+        pos_m: vec![0.0; n],
+        force_n: Some(vec![0.0; n]),
+        base_pos_m: None,
+        resampled: false,
+        pos_source: None,
+        beam_x_m: vec![],
+        starts_at_rest: true,
+    };
+    let wave = Disturbance::Square {
+        period_s: 0.4,
+        duty: 0.5,
+        amplitude_n: 80.0,
+        offset_n: 10.0,
+        first_rise_s: 0.1,
+    };
+    let model = |d: Disturbance| Model {
+        axis: p.axes[0].clone(),
+        t3_s: p.timing.t3_s,
+        t2_s: p.timing.t2_s,
+        t1_s: p.timing.t1_s,
+        pos_source: p.diagnose.pos_source,
+        delay_s: 0.0,
+        disturbance: vec![d],
+        beam: None,
+    };
+    let table = simulate(&model(wave.clone()), &rec, n);
+    let in_cmd = simulate(&model(Disturbance::InCommand(Box::new(wave))), &rec, n);
+    for k in 0..n {
+        assert_eq!(table.pos_m[k], in_cmd.pos_m[k], "position at sample {k}");
+        let t = rec.t_s(k);
+        let u = ((t - 0.1) / 0.4).rem_euclid(1.0);
+        let d = 10.0 + if u < 0.5 { 80.0 } else { -80.0 };
+        assert!(
+            (in_cmd.force_n[k] - table.force_n[k] - d).abs() < 1e-9,
+            "force at sample {k}: {} vs {} + {d}",
+            in_cmd.force_n[k],
+            table.force_n[k]
+        );
+    }
+}
+
 /// In-distribution: cases from our own model (the same equations the candidates fit), so
 /// this is the easy check; the honest figure is `diagnose-eval --generator independent`.
 #[test]

@@ -313,32 +313,104 @@ fn edge_reach_samples(period_s: f64, dt_s: f64) -> isize {
     (reach_s / dt_s).round().max(1.0) as isize
 }
 
-/// A square wave's level, offset and edge from replays. The residual moves linearly with
-/// the wave's level and offset (the loop is linear away from friction's switching), so one
-/// replay of a wave at a trial edge gives the best level and offset there by least squares;
-/// the edge is scanned coarsely and then narrowed by halving steps. The edge acts only at
-/// whole samples, so a gradient solver would stall on it.
+/// Replays of the base with one more disturbance at a fixed site, as changes of the
+/// solver's rows: the columns of the linear fits below.
+struct Replays<'r, 'c, 'a> {
+    ctx: &'r Context<'c, 'a>,
+    in_command: bool,
+    /// The base's own rows.
+    r0: DVector<f64>,
+}
+
+impl Replays<'_, '_, '_> {
+    /// `d` at this site.
+    fn site(&self, d: Disturbance) -> Disturbance {
+        if self.in_command {
+            Disturbance::InCommand(Box::new(d))
+        } else {
+            d
+        }
+    }
+
+    /// How adding `d` changes the rows.
+    fn change(&self, d: Disturbance) -> Result<DVector<f64>, DiagnoseError> {
+        let mut c = self.ctx.base.clone();
+        c.model.disturbance.push(self.site(d));
+        Ok(self.ctx.eng.lm_rows(&self.ctx.eng.sim_fit(&c)?) - &self.r0)
+    }
+}
+
+/// A wave's levels (and a square wave's edge) from replays: the residual moves linearly
+/// with a wave's levels (the loop is linear away from friction's switching), so a few
+/// replays give them by least squares, which a gradient solver on the edge would not (the
+/// edge acts only at whole samples, so its finite differences are mostly zero).
 fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
     let (inner, in_command) = match d {
         Disturbance::InCommand(inner) => (*inner, true),
         other => (other, false),
     };
-    let site = |d: Disturbance| {
-        if in_command {
-            Disturbance::InCommand(Box::new(d))
-        } else {
-            d
-        }
+    let rp = Replays {
+        ctx,
+        in_command,
+        r0: ctx.eng.lm_rows(&ctx.eng.sim_fit(ctx.base)?),
     };
+    let refined = match inner {
+        Disturbance::Square { .. } => refine_square(&rp, inner)?,
+        Disturbance::Sine { .. } => refine_sine(&rp, inner)?,
+        other => other,
+    };
+    Ok(rp.site(refined))
+}
+
+/// A sine's amplitude, phase and offset: its sine, cosine and constant parts are three
+/// linear columns, so three replays fit them exactly for a linear loop.
+fn refine_sine(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
+    let Disturbance::Sine {
+        period_s,
+        amplitude_n,
+        first_rise_s,
+        ..
+    } = d
+    else {
+        return Ok(d);
+    };
+    let amp = amplitude_n.abs().max(1e-3);
+    let sine = |amplitude_n: f64, offset_n: f64, first_rise_s: f64| Disturbance::Sine {
+        period_s,
+        amplitude_n,
+        offset_n,
+        first_rise_s,
+    };
+    let g_sin = rp.change(sine(amp, 0.0, first_rise_s))?;
+    // A quarter period earlier: the cosine of the same phase.
+    let g_cos = rp.change(sine(amp, 0.0, first_rise_s - 0.25 * period_s))?;
+    let g_offset = rp.change(sine(0.0, amp, first_rise_s))?;
+    let Some((_, x)) = linear_levels(&rp.r0, &[g_sin, g_cos, g_offset]) else {
+        return Ok(d);
+    };
+    // a·sin θ + b·cos θ = R·sin(θ + φ): the up-crossing moves φ/ω earlier.
+    let phi = x[1].atan2(x[0]);
+    let rise = first_rise_s - phi / std::f64::consts::TAU * period_s;
+    Ok(sine(
+        amp * x[0].hypot(x[1]),
+        amp * x[2],
+        rise.rem_euclid(period_s),
+    ))
+}
+
+/// A square wave's level, offset and edge: for each trial edge one replay of the wave gives
+/// the best level and offset there; the edge is scanned coarsely and then narrowed by
+/// halving steps.
+fn refine_square(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
     let Disturbance::Square {
         period_s,
         duty,
         amplitude_n,
         first_rise_s,
         ..
-    } = inner
+    } = d
     else {
-        return Ok(site(inner));
+        return Ok(d);
     };
     let amp = amplitude_n.abs().max(1e-3);
     let square = |amplitude_n: f64, offset_n: f64, first_rise_s: f64| Disturbance::Square {
@@ -348,20 +420,14 @@ fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
         offset_n,
         first_rise_s,
     };
-    let rows_with = |d: Disturbance| -> Result<DVector<f64>, DiagnoseError> {
-        let mut c = ctx.base.clone();
-        c.model.disturbance.push(site(d));
-        Ok(ctx.eng.lm_rows(&ctx.eng.sim_fit(&c)?))
-    };
-    let r0 = ctx.eng.lm_rows(&ctx.eng.sim_fit(ctx.base)?);
-    let g_offset = rows_with(square(0.0, amp, first_rise_s))? - &r0;
-    let dt_s = ctx.eng.split.main.t3_s;
+    let g_offset = rp.change(square(0.0, amp, first_rise_s))?;
+    let dt_s = rp.ctx.eng.split.main.t3_s;
     // (cost, level, offset) with the edge `shift` samples from the detector's.
     let at = |shift: isize| -> Result<(f64, f64, f64), DiagnoseError> {
         let rise = first_rise_s + shift as f64 * dt_s;
-        let g_wave = rows_with(square(amp, 0.0, rise))? - &r0;
-        Ok(match linear_levels(&r0, &g_wave, &g_offset) {
-            Some((cost, a, c)) => (cost, a * amp, c * amp),
+        let g_wave = rp.change(square(amp, 0.0, rise))?;
+        Ok(match linear_levels(&rp.r0, &[g_wave, g_offset.clone()]) {
+            Some((cost, x)) => (cost, x[0] * amp, x[1] * amp),
             None => (f64::INFINITY, 0.0, 0.0),
         })
     };
@@ -391,7 +457,7 @@ fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
     let (shift, (_, level, offset_n)) = best;
     let rise = first_rise_s + shift as f64 * dt_s;
     // A negative level is the same wave with its halves swapped.
-    Ok(site(if level >= 0.0 {
+    Ok(if level >= 0.0 {
         square(level, offset_n, rise.rem_euclid(period_s))
     } else {
         Disturbance::Square {
@@ -401,21 +467,16 @@ fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
             offset_n,
             first_rise_s: (rise + duty * period_s).rem_euclid(period_s),
         }
-    }))
+    })
 }
 
-/// The least-squares `a`, `c` of `r0 + a·g_wave + c·g_offset ≈ 0` (nalgebra's SVD), with
-/// the sum of squares left: (cost, a, c). None when the system is degenerate.
-fn linear_levels(
-    r0: &DVector<f64>,
-    g_wave: &DVector<f64>,
-    g_offset: &DVector<f64>,
-) -> Option<(f64, f64, f64)> {
-    let a = DMatrix::from_columns(&[g_wave.clone(), g_offset.clone()]);
+/// The least-squares `x` of `r0 + Σ x_j·cols_j ≈ 0` (nalgebra's SVD), with the sum of
+/// squares left: (cost, x). None when the system is degenerate.
+fn linear_levels(r0: &DVector<f64>, cols: &[DVector<f64>]) -> Option<(f64, DVector<f64>)> {
+    let a = DMatrix::from_columns(cols);
     let x = a.clone().svd(true, true).solve(&(-r0), 1e-12).ok()?;
-    let left = r0 + &a * &x;
-    let out = (left.norm_squared(), x[0], x[1]);
-    (out.0.is_finite() && out.1.is_finite() && out.2.is_finite()).then_some(out)
+    let cost = (r0 + &a * &x).norm_squared();
+    (cost.is_finite() && x.iter().all(|v| v.is_finite())).then_some((cost, x))
 }
 
 /// Report keys and values of a disturbance.
