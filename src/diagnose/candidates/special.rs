@@ -218,7 +218,6 @@ pub fn fit(ctx: &Context, effect: Effect, ev: Evidence) -> Result<Option<Fitted>
     match effect {
         Effect::Quantization if ev.pass => fit_quantization(ctx, ev),
         Effect::LeadError if ev.hint.len() >= 2 => fit_lead(ctx, ev),
-        Effect::ExternalDisturbance => super::disturbance::fit(ctx),
         Effect::BeamSag if ev.pass => ctx.fit_lm(effect, ev),
         _ => Ok(None),
     }
