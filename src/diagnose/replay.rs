@@ -454,6 +454,12 @@ pub enum Disturbance {
         /// The level from each change on, N.
         levels_n: Vec<f64>,
     },
+    /// The inner force added to the amplifier's output rather than pushed on the table from
+    /// outside: it moves the axis the same way, but the record's force channel (the
+    /// amplifier's output) carries it, so the force residual shows no step and only the
+    /// position residual does. A pulse injected into the drive's command (the EMPS
+    /// cross-validation run) acts so.
+    InCommand(Box<Disturbance>),
 }
 
 impl Disturbance {
@@ -461,6 +467,7 @@ impl Disturbance {
     fn force_at(&self, t_s: f64) -> f64 {
         match self {
             Disturbance::Windows(_) => 0.0,
+            Disturbance::InCommand(d) => d.force_at(t_s),
             Disturbance::Square {
                 period_s,
                 duty,
@@ -497,19 +504,41 @@ impl Disturbance {
 pub fn disturbance_series(d: &[Disturbance], rec: &Record, n: usize) -> Vec<f64> {
     let mut out = vec![0.0; n];
     for dist in d {
-        if let Disturbance::Windows(ev) = dist {
+        add_series(dist, rec, &mut out);
+    }
+    out
+}
+
+/// The part of [`disturbance_series`] the record's force channel carries (the
+/// [`Disturbance::InCommand`] ones); None when there is none.
+pub fn commanded_series(d: &[Disturbance], rec: &Record, n: usize) -> Option<Vec<f64>> {
+    let mut out: Option<Vec<f64>> = None;
+    for dist in d {
+        if let Disturbance::InCommand(inner) = dist {
+            add_series(inner, rec, out.get_or_insert_with(|| vec![0.0; n]));
+        }
+    }
+    out
+}
+
+/// Adds the force of `dist` at each sample of `rec` to `out`.
+fn add_series(dist: &Disturbance, rec: &Record, out: &mut [f64]) {
+    let n = out.len();
+    match dist {
+        Disturbance::Windows(ev) => {
             for e in ev {
                 for f in out.iter_mut().take(e.i1.min(n)).skip(e.i0) {
                     *f += e.force_n;
                 }
             }
-        } else {
+        }
+        Disturbance::InCommand(inner) => add_series(inner, rec, out),
+        _ => {
             for (k, f) in out.iter_mut().enumerate() {
                 *f += dist.force_at(rec.t_s(k));
             }
         }
     }
-    out
 }
 
 /// Everything a candidate can change: the axis parameters plus what lies outside the
@@ -639,6 +668,8 @@ pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
         crate::comp::servo_comps(0, a),
     );
     let ext = disturbance_series(&model.disturbance, rec, n);
+    // A force added to the amplifier's output is part of what the force channel records.
+    let seen = commanded_series(&model.disturbance, rec, n);
     for k in 0..n {
         if k % n23 == 0 {
             seg.next_segment(cmd[(k + n23 - 1).min(n - 1)]);
@@ -652,7 +683,8 @@ pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
             acc_cmd_mps2: seg.acc_mps2(),
             ext_force_n: ext[k],
         });
-        out.force_n.push(force);
+        out.force_n
+            .push(force + seen.as_ref().map_or(0.0, |s| s[k]));
     }
     out
 }

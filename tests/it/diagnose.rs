@@ -79,6 +79,174 @@ fn emps_coulomb_friction_is_found_with_the_published_force_and_offset_sign() {
     }
 }
 
+/// The pulse record with its `pulses_N` column removed (the diagnosis must find the pulses
+/// without it), written to `dir`; with the pulse edges the column held: (rising, falling)
+/// times in s.
+fn without_pulses(dir: &std::path::Path) -> (PathBuf, Vec<f64>, Vec<f64>) {
+    let src = shared("emps/emps_test_DATA_EMPS_PULSES.csv");
+    let text = std::fs::read_to_string(&src).expect("pulse record reads");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("{}: no column {name}", src.display()))
+    };
+    let (drop, t_col) = (col("pulses_N"), col("t_s"));
+    let keep = |f: Vec<&str>| -> String {
+        f.iter()
+            .enumerate()
+            .filter(|(i, _)| *i != drop)
+            .map(|(_, v)| *v)
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    let mut out = keep(header.clone()) + "\n";
+    let (mut rising, mut falling) = (vec![], vec![]);
+    let mut prev = 0.0;
+    for line in lines {
+        let f: Vec<&str> = line.split(',').collect();
+        let t: f64 = f[t_col].parse().expect("t_s");
+        let p: f64 = f[drop].parse().expect("pulses_N");
+        if p > prev {
+            rising.push(t);
+        } else if p < prev {
+            falling.push(t);
+        }
+        prev = p;
+        out += &keep(f);
+        out.push('\n');
+    }
+    let path = dir.join("emps_pulses_without_pulse_column.csv");
+    std::fs::write(&path, out).expect("write the record without pulses_N");
+    (path, rising, falling)
+}
+
+#[test]
+fn emps_pulses_are_found_as_a_one_second_square_wave_without_the_pulse_column() {
+    let lp = preset::load("presets/emps.ron").expect("emps preset");
+    let p = &lp.preset;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (path, rising, falling) = without_pulses(dir.path());
+    let header = std::fs::read_to_string(&path).expect("reads");
+    assert!(!header.lines().next().unwrap_or("").contains("pulses"));
+    let opts = Options {
+        holdout: 0.3,
+        ..Options::default()
+    };
+    let r = run(p, &record(p, &path), None, &opts);
+    assert!(
+        r.selected.iter().any(|s| s == "external_disturbance"),
+        "selected {:?}\n{:#?}",
+        r.selected,
+        r.ranking
+    );
+    let d = r
+        .ranking
+        .iter()
+        .find(|e| e.effect == "external_disturbance")
+        .expect("external_disturbance ranked");
+    let period = d.params["period_s"];
+    let rise = d.params["first_rise_s"];
+    let duty = d.params.get("duty").copied().unwrap_or(0.5);
+    assert!(
+        (period - 1.0).abs() <= 0.03,
+        "period {period} s, true 1.0 s"
+    );
+    let k = (rise - 0.344).round();
+    assert!(
+        (rise - 0.344 - k).abs() <= 0.030,
+        "first rising edge {rise} s, true 0.344 + k s"
+    );
+    // The estimated edges against the column's, over the whole record (fitting and
+    // held-out parts): the wave must extrapolate, not only fit.
+    let nearest = |t: f64, phase: f64| {
+        let k = ((t - rise - phase * period) / period).round();
+        rise + phase * period + k * period
+    };
+    let mut worst = 0.0f64;
+    println!("edge     true s    estimated s   error ms");
+    for (kind, edges, phase) in [("rising", &rising, 0.0), ("falling", &falling, duty)] {
+        for (i, &t) in edges.iter().enumerate() {
+            let e = nearest(t, phase);
+            worst = worst.max((e - t).abs());
+            if i < 2 || i + 1 == edges.len() {
+                println!("{kind:8} {t:9.4} {e:12.4} {:10.1}", (e - t) * 1e3);
+            }
+        }
+    }
+    println!(
+        "period {period:.5} s, first rise {rise:.4} s, duty {duty:.4}, {} rising and {} falling edges, worst {:.1} ms",
+        rising.len(),
+        falling.len(),
+        worst * 1e3
+    );
+    assert_eq!(rising.len() + falling.len(), 49, "the column's edges");
+    assert!(
+        worst <= 0.030,
+        "an estimated edge is {} ms off",
+        worst * 1e3
+    );
+}
+
+/// A force added to the amplifier's output moves the axis exactly as the same force on the
+/// table does; only the force channel differs, by that force (it records the amplifier's
+/// output). This is what tells the EMPS pulses (injected into the drive's command) from a
+/// push on the table.
+#[test]
+fn a_force_in_the_amplifiers_output_moves_the_axis_like_one_on_the_table() {
+    use axisbench::diagnose::replay::{Disturbance, Model, simulate};
+    let lp = preset::load("presets/emps.ron").expect("emps preset");
+    let p = &lp.preset;
+    let n = 2000;
+    let rec = Record {
+        axis: "x".into(),
+        t3_s: p.timing.t3_s,
+        t0_s: 0.0,
+        cmd_m: (0..n).map(|k| 1e-5 * k as f64).collect(),
+        comp_m: None,
+        pos_m: vec![0.0; n],
+        force_n: Some(vec![0.0; n]),
+        base_pos_m: None,
+        resampled: false,
+        pos_source: None,
+        beam_x_m: vec![],
+        starts_at_rest: true,
+    };
+    let wave = Disturbance::Square {
+        period_s: 0.4,
+        duty: 0.5,
+        amplitude_n: 80.0,
+        offset_n: 10.0,
+        first_rise_s: 0.1,
+    };
+    let model = |d: Disturbance| Model {
+        axis: p.axes[0].clone(),
+        t3_s: p.timing.t3_s,
+        t2_s: p.timing.t2_s,
+        t1_s: p.timing.t1_s,
+        pos_source: p.diagnose.pos_source,
+        delay_s: 0.0,
+        disturbance: vec![d],
+        beam: None,
+    };
+    let table = simulate(&model(wave.clone()), &rec, n);
+    let in_cmd = simulate(&model(Disturbance::InCommand(Box::new(wave))), &rec, n);
+    for k in 0..n {
+        assert_eq!(table.pos_m[k], in_cmd.pos_m[k], "position at sample {k}");
+        let t = rec.t_s(k);
+        let u = ((t - 0.1) / 0.4).rem_euclid(1.0);
+        let d = 10.0 + if u < 0.5 { 80.0 } else { -80.0 };
+        assert!(
+            (in_cmd.force_n[k] - table.force_n[k] - d).abs() < 1e-9,
+            "force at sample {k}: {} vs {} + {d}",
+            in_cmd.force_n[k],
+            table.force_n[k]
+        );
+    }
+}
+
 /// In-distribution: cases from our own model (the same equations the candidates fit), so
 /// this is the easy check; the honest figure is `diagnose-eval --generator independent`.
 #[test]

@@ -6,6 +6,7 @@
 //! explains) and adding it shrinks the held-out residual. Shrink alone let a delay or a
 //! compliance absorb any small mismatch; a signature alone says nothing about size.
 
+mod disturbance;
 mod friction;
 mod special;
 
@@ -357,12 +358,16 @@ impl Context<'_, '_> {
 
     /// Evidence and fit of one effect; None when it cannot be fitted on this record.
     pub fn fit(&self, effect: Effect) -> Result<Option<Fitted>, DiagnoseError> {
+        if effect == Effect::ExternalDisturbance {
+            // Its detector shapes the fit too: run once, not once for the evidence and
+            // again for the fit (two spectra of each residual per round).
+            return disturbance::fit(self);
+        }
         let ev = self.evidence(effect);
         match effect {
-            Effect::Quantization
-            | Effect::LeadError
-            | Effect::ExternalDisturbance
-            | Effect::BeamSag => special::fit(self, effect, ev),
+            Effect::Quantization | Effect::LeadError | Effect::BeamSag => {
+                special::fit(self, effect, ev)
+            }
             _ => self.fit_lm(effect, ev),
         }
     }

@@ -1,7 +1,8 @@
 //! Signatures read off the record rather than a friction regression, and the effects whose
 //! shape a detector finds before any fit: a grid the positions lie on, an error periodic
 //! along the travel at a pitch nobody told us, a common lag, a resonance, a slow drift, a
-//! force that follows no state of the axis (periodic, steps or bursts).
+//! force that follows no state of the axis (periodic, steps or bursts; its detector and fit
+//! are in `disturbance`).
 
 use std::collections::BTreeMap;
 
@@ -10,9 +11,7 @@ use crate::diagnose::DiagnoseError;
 use crate::diagnose::calibrate::MIN_SKEW;
 use crate::diagnose::effects::Effect;
 use crate::diagnose::engine::{Cand, Eval};
-use crate::diagnose::evidence::{self, WaveShape};
-use crate::diagnose::lm::{self, Param};
-use crate::diagnose::replay::{Disturbance, ForceEvent};
+use crate::diagnose::evidence;
 use crate::preset::PosSource;
 use crate::units::{m_to_mm, m_to_um, mm_to_m, s_to_ms, um_to_m};
 
@@ -30,7 +29,7 @@ pub fn evidence(ctx: &Context, effect: Effect) -> Evidence {
         Effect::CommandDelay => delay(ctx),
         Effect::Compliance => resonance(ctx),
         Effect::ThermalGrowth => drift(ctx),
-        Effect::ExternalDisturbance => disturbance(ctx).0,
+        Effect::ExternalDisturbance => super::disturbance::detect(ctx).0,
         Effect::BeamSag => beam(ctx),
         _ => Evidence::absent("no signature test"),
     }
@@ -214,167 +213,35 @@ fn beam(ctx: &Context) -> Evidence {
     }
 }
 
-/// The part of the force residual no state of the axis explains, and what shape it has:
-/// a periodic wave, level steps or bursts.
-fn disturbance(ctx: &Context) -> (Evidence, Option<Disturbance>) {
-    let s = ctx.sig;
-    let dt = ctx.eng.split.main.t3_s;
-    let y: Vec<f64> = match &s.r_force {
-        Some(f) => f.clone(),
-        None => s.r_pos.clone(),
-    };
-    let dir: Vec<f64> = s.vel_mps.iter().map(|v| v.signum()).collect();
-    let ones = vec![1.0; y.len()];
-    let cols: Vec<&[f64]> = vec![&dir, &s.vel_mps, &s.acc_mps2, &ones];
-    let rem: Vec<f64> = match evidence::regress(&cols, &y, s.corr_len) {
-        Some(r) => y
-            .iter()
-            .enumerate()
-            .map(|(k, v)| v - cols.iter().zip(&r.coef).map(|(c, b)| c[k] * b).sum::<f64>())
-            .collect(),
-        None => y,
-    };
-    let t0 = s.t_s.first().copied().unwrap_or(0.0);
-    let span = dt * rem.len() as f64;
-    if let Some(p) = evidence::periodic_in_time(&rem, t0, dt, 0.1, (span / 3.0).min(10.0))
-        && p.peak_ratio >= 20.0
-        && p.explained >= 0.15
-    {
-        return periodic(p);
-    }
-    let min_gap = ((0.5 / dt) as usize).max(4);
-    let steps = evidence::steps(&rem, min_gap, 10.0, 10);
-    if !steps.is_empty() {
-        let mut times_s = vec![];
-        let mut levels_n = vec![];
-        let mut level = 0.0;
-        for st in &steps {
-            level -= st.jump;
-            times_s.push(t0 + st.index as f64 * dt);
-            levels_n.push(level);
-        }
-        let ev = Evidence {
-            pass: true,
-            text: format!(
-                "{} level steps in the force no state explains, up to {:.1} N",
-                steps.len(),
-                steps.iter().map(|s| s.jump.abs()).fold(0.0, f64::max)
-            ),
-            ..Evidence::default()
-        }
-        .with("steps", steps.len() as f64);
-        return (ev, Some(Disturbance::Steps { times_s, levels_n }));
-    }
-    let window = ((0.02 / dt) as usize).max(4);
-    let bursts = evidence::bursts(&rem, window, 10.0);
-    if bursts.is_empty() || bursts.len() > 400 {
-        return (
-            Evidence::absent(
-                "the force no state explains is neither periodic nor stepped nor bursty",
-            ),
-            None,
-        );
-    }
-    let ev = Evidence {
-        pass: true,
-        text: format!(
-            "{} bursts of force no state explains, {:.1} N rms at most",
-            bursts.len(),
-            bursts.iter().map(|b| b.rms).fold(0.0, f64::max)
-        ),
-        ..Evidence::default()
-    }
-    .with("bursts", bursts.len() as f64);
-    let windows = bursts
-        .iter()
-        .map(|b| ForceEvent {
-            i0: b.start,
-            i1: b.end,
-            force_n: -b.mean,
-        })
-        .collect();
-    (ev, Some(Disturbance::Windows(windows)))
-}
-
-/// A periodic force on the table from the periodic part of the force residual: the motor
-/// opposes the force, so the wave is inverted; its amplitude is kept positive by moving the
-/// edge.
-fn periodic(p: evidence::Periodic) -> (Evidence, Option<Disturbance>) {
-    let (d, shape, duty) = match p.shape {
-        WaveShape::Square { duty } => {
-            // Inverted: high where the residual is low.
-            let rise = p.first_rise_s + duty * p.period_s;
-            (
-                Disturbance::Square {
-                    period_s: p.period_s,
-                    duty: 1.0 - duty,
-                    amplitude_n: p.amplitude,
-                    offset_n: -p.offset,
-                    first_rise_s: rise.rem_euclid(p.period_s),
-                },
-                "square",
-                1.0 - duty,
-            )
-        }
-        WaveShape::Sine => (
-            Disturbance::Sine {
-                period_s: p.period_s,
-                amplitude_n: p.amplitude,
-                offset_n: -p.offset,
-                first_rise_s: (p.first_rise_s + 0.5 * p.period_s).rem_euclid(p.period_s),
-            },
-            "sine",
-            0.5,
-        ),
-    };
-    let rise = match &d {
-        Disturbance::Square { first_rise_s, .. } | Disturbance::Sine { first_rise_s, .. } => {
-            *first_rise_s
-        }
-        _ => 0.0,
-    };
-    let ev = Evidence {
-        pass: true,
-        text: format!(
-            "a {shape} force of period {:.4} s and ±{:.2} N no state explains, rising at {:.3} s (+ k periods); {:.0}× the median of the spectrum, {:.0} % of that force explained",
-            p.period_s,
-            p.amplitude,
-            rise,
-            p.peak_ratio,
-            100.0 * p.explained
-        ),
-        ..Evidence::default()
-    }
-    .with("period_s", p.period_s)
-    .with("amplitude_n", p.amplitude)
-    .with("first_rise_s", rise)
-    .with("duty", duty)
-    .with("peak_ratio", p.peak_ratio);
-    (ev, Some(d))
-}
-
 /// Evidence and fit of the effects a detector shapes.
 pub fn fit(ctx: &Context, effect: Effect, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError> {
     match effect {
         Effect::Quantization if ev.pass => fit_quantization(ctx, ev),
         Effect::LeadError if ev.hint.len() >= 2 => fit_lead(ctx, ev),
-        Effect::ExternalDisturbance => fit_disturbance(ctx),
         Effect::BeamSag if ev.pass => ctx.fit_lm(effect, ev),
         _ => Ok(None),
     }
 }
 
 /// A detector-shaped effect, fitted.
-struct Made {
-    effect: Effect,
-    cand: Cand,
-    eval: Eval,
-    keys: Vec<String>,
-    theta: Vec<f64>,
-    applied: Applied,
+pub(super) struct Made {
+    /// Which effect.
+    pub effect: Effect,
+    /// The base with the effect.
+    pub cand: Cand,
+    /// Its residuals.
+    pub eval: Eval,
+    /// Report key of each parameter.
+    pub keys: Vec<String>,
+    /// The parameters.
+    pub theta: Vec<f64>,
+    /// How the effect was added.
+    pub applied: Applied,
 }
 
-fn fitted(ctx: &Context, m: Made, ev: Evidence) -> Fitted {
+/// A detector-shaped effect as a [`Fitted`] (no standard deviations: nothing was fitted
+/// by least squares over its shape).
+pub(super) fn fitted(ctx: &Context, m: Made, ev: Evidence) -> Fitted {
     let Made {
         effect,
         cand,
@@ -479,137 +346,4 @@ fn fit_lead(ctx: &Context, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError
         },
         ev,
     )))
-}
-
-/// The disturbance the detector shaped, its level (and for a wave its edge) refined on
-/// replays, and detected again on a separate validation record.
-fn fit_disturbance(ctx: &Context) -> Result<Option<Fitted>, DiagnoseError> {
-    let (ev, d) = disturbance(ctx);
-    let (Some(d), true) = (d, ev.pass) else {
-        return Ok(None);
-    };
-    let d = refine(ctx, d)?;
-    let applied = Applied::Disturbance(d.clone(), vec![]);
-    let mut cand = ctx.base.clone();
-    applied.apply(&mut cand);
-    let eval = ctx.eng.evaluate(&cand)?;
-    let (keys, theta) = describe(&d);
-    let mut f = fitted(
-        ctx,
-        Made {
-            effect: Effect::ExternalDisturbance,
-            cand,
-            eval,
-            keys,
-            theta,
-            applied,
-        },
-        ev,
-    );
-    // Shape (period, duty, step times or window edges) is found by the detector: counted
-    // as parameters too.
-    f.n_params = f.theta.len().max(3);
-    Ok(Some(f))
-}
-
-/// A wave's amplitude, offset and edge, by least squares on replays from the detector's
-/// values.
-fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
-    let Disturbance::Square {
-        period_s,
-        duty,
-        amplitude_n,
-        offset_n,
-        first_rise_s,
-    } = d
-    else {
-        return Ok(d);
-    };
-    let wave = |th: &[f64]| Disturbance::Square {
-        period_s,
-        duty,
-        amplitude_n: th[0],
-        offset_n: th[1],
-        first_rise_s: th[2],
-    };
-    let rows = |th: &[f64]| {
-        let mut c = ctx.base.clone();
-        c.model.disturbance.push(wave(th));
-        Ok(Some(ctx.eng.lm_rows(&ctx.eng.sim_fit(&c)?)))
-    };
-    let amp = amplitude_n.abs().max(1e-3);
-    let params = [
-        Param {
-            lo: 0.0,
-            hi: 20.0 * amp,
-            scale: amp,
-        },
-        Param {
-            lo: -20.0 * amp,
-            hi: 20.0 * amp,
-            scale: amp,
-        },
-        Param {
-            lo: first_rise_s - 0.1 * period_s,
-            hi: first_rise_s + 0.1 * period_s,
-            scale: 0.01 * period_s,
-        },
-    ];
-    let f = lm::fit(
-        &[amplitude_n, offset_n, first_rise_s],
-        &params,
-        &rows,
-        0.03,
-        6,
-    )?;
-    Ok(wave(&f.theta))
-}
-
-/// Report keys and values of a disturbance.
-fn describe(d: &Disturbance) -> (Vec<String>, Vec<f64>) {
-    match d {
-        Disturbance::Square {
-            period_s,
-            duty,
-            amplitude_n,
-            offset_n,
-            first_rise_s,
-        } => (
-            [
-                "period_s",
-                "amplitude_n",
-                "first_rise_s",
-                "duty",
-                "offset_n",
-            ]
-            .map(String::from)
-            .to_vec(),
-            vec![*period_s, *amplitude_n, *first_rise_s, *duty, *offset_n],
-        ),
-        Disturbance::Sine {
-            period_s,
-            amplitude_n,
-            offset_n,
-            first_rise_s,
-        } => (
-            ["period_s", "amplitude_n", "first_rise_s", "offset_n"]
-                .map(String::from)
-                .to_vec(),
-            vec![*period_s, *amplitude_n, *first_rise_s, *offset_n],
-        ),
-        Disturbance::Steps { times_s, levels_n } => (
-            ["steps", "largest_level_n"].map(String::from).to_vec(),
-            vec![
-                times_s.len() as f64,
-                levels_n.iter().fold(0.0f64, |m, l| m.max(l.abs())),
-            ],
-        ),
-        Disturbance::Windows(w) => (
-            ["windows", "largest_force_n"].map(String::from).to_vec(),
-            vec![
-                w.len() as f64,
-                w.iter().fold(0.0f64, |m, e| m.max(e.force_n.abs())),
-            ],
-        ),
-    }
 }

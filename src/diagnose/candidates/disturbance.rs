@@ -1,0 +1,527 @@
+//! The external disturbance: force that follows no state of the axis (a periodic wave,
+//! level steps or bursts), found in what the state regressors leave of the residuals.
+//!
+//! A force on the axis shows in two places: the force residual (the amplifier opposes a
+//! force pushed on the table from outside) and the position residual (the loop gives way
+//! by force / stiffness). A force injected into the amplifier's own output shows only in
+//! the position: the record's force channel carries it, so the force residual keeps no
+//! trace of it but the edges. A periodic wave is therefore searched in both residuals, and
+//! the site that replays better is kept.
+
+use super::{Context, Evidence, Fitted, Signals, special};
+use crate::diagnose::DiagnoseError;
+use crate::diagnose::effects::Effect;
+use crate::diagnose::evidence::{self, Periodic, WaveShape};
+use crate::diagnose::replay::{Disturbance, ForceEvent};
+use nalgebra::{DMatrix, DVector};
+
+/// Least peak-to-median ratio of the periodogram for a periodic disturbance (white noise
+/// gives ~10–20).
+const MIN_PEAK_RATIO: f64 = 20.0;
+
+/// Least share of the unexplained force a periodic wave must explain.
+const MIN_EXPLAINED_FORCE: f64 = 0.15;
+
+/// Least share of the unexplained position residual a periodic wave must explain when the
+/// record has a force channel too: the position residual of a model mismatch repeats with
+/// a repeating command, so it needs a clearer wave than the force does.
+const MIN_EXPLAINED_POS: f64 = 0.3;
+
+/// Shortest period searched, s.
+const MIN_PERIOD_S: f64 = 0.1;
+
+/// Longest period searched, s (and at most a third of the fitting part).
+const MAX_PERIOD_S: f64 = 10.0;
+
+/// What the detector shaped: the disturbance as a force on the table, and whether its
+/// wave was read off the position residual (so that it may as well sit in the amplifier's
+/// output; the fit decides).
+pub struct Shaped {
+    /// The disturbance, as a force on the table.
+    pub dist: Disturbance,
+    /// Whether a periodic wave was found in the position residual.
+    pub from_position: bool,
+    /// The periodic wave's figures: peak over the median of its periodogram, and the share
+    /// of the unexplained residual it explains (0 for steps and bursts).
+    pub peak_explained: (f64, f64),
+}
+
+/// `y` less its least-squares fit on the states a friction or inertia term follows
+/// (direction, velocity, acceleration, a constant): what no state explains.
+fn unexplained(s: &Signals, y: &[f64]) -> Vec<f64> {
+    let dir: Vec<f64> = s.vel_mps.iter().map(|v| v.signum()).collect();
+    let ones = vec![1.0; y.len()];
+    let cols: Vec<&[f64]> = vec![&dir, &s.vel_mps, &s.acc_mps2, &ones];
+    match evidence::regress(&cols, y, s.corr_len) {
+        Some(r) => y
+            .iter()
+            .enumerate()
+            .map(|(k, v)| v - cols.iter().zip(&r.coef).map(|(c, b)| c[k] * b).sum::<f64>())
+            .collect(),
+        None => y.to_vec(),
+    }
+}
+
+/// Static stiffness of the position loop, N/m: a steady force moves a P/PD loop off its
+/// command by force / (kp·kv). It turns a wave in the position residual into a force.
+fn loop_stiffness_n_per_m(ctx: &Context) -> f64 {
+    let s = &ctx.base.model.axis.servo;
+    let k = s.kp_per_s * s.kv_n_s_per_m;
+    if k.is_finite() && k > 0.0 { k } else { 1e6 }
+}
+
+/// The strongest periodic wave in the unexplained force (`rem_force`) or position
+/// (`rem_pos`) that passes its thresholds, as a force on the table.
+fn periodic_wave(ctx: &Context, rem_force: Option<&[f64]>, rem_pos: &[f64]) -> Option<Shaped> {
+    let dt = ctx.eng.split.main.t3_s;
+    let t0 = ctx.sig.t_s.first().copied().unwrap_or(0.0);
+    let span = dt * rem_pos.len() as f64;
+    let max_period_s = (span / 3.0).min(MAX_PERIOD_S);
+    let find = |y: &[f64], min_explained: f64| {
+        evidence::periodic_in_time(y, t0, dt, MIN_PERIOD_S, max_period_s)
+            .filter(|p| p.peak_ratio >= MIN_PEAK_RATIO && p.explained >= min_explained)
+    };
+    // The motor opposes a force on the table: the force residual is the force inverted.
+    let in_force = rem_force.and_then(|f| find(f, MIN_EXPLAINED_FORCE).map(|p| (p, -1.0)));
+    let pos_min = if rem_force.is_some() {
+        MIN_EXPLAINED_POS
+    } else {
+        MIN_EXPLAINED_FORCE
+    };
+    let in_pos = find(rem_pos, pos_min).map(|p| (p, loop_stiffness_n_per_m(ctx)));
+    let from_position = match (&in_force, &in_pos) {
+        (Some(f), Some(p)) => p.0.explained > f.0.explained,
+        (None, Some(_)) => true,
+        _ => false,
+    };
+    let (p, gain) = if from_position { in_pos } else { in_force }?;
+    Some(Shaped {
+        dist: wave(&p, gain),
+        from_position,
+        peak_explained: (p.peak_ratio, p.explained),
+    })
+}
+
+/// The force on the table that produces the wave `p` found in a residual that is `gain`
+/// times that force (−1 for the force residual; the loop's compliance, inverted, for the
+/// position residual). The amplitude is kept positive by moving the edge.
+fn wave(p: &Periodic, gain: f64) -> Disturbance {
+    let amplitude_n = gain.abs() * p.amplitude;
+    let offset_n = gain * p.offset;
+    match p.shape {
+        WaveShape::Square { duty } if gain < 0.0 => Disturbance::Square {
+            period_s: p.period_s,
+            duty: 1.0 - duty,
+            amplitude_n,
+            offset_n,
+            // High where the residual is low: the residual's falling edge.
+            first_rise_s: (p.first_rise_s + duty * p.period_s).rem_euclid(p.period_s),
+        },
+        WaveShape::Square { duty } => Disturbance::Square {
+            period_s: p.period_s,
+            duty,
+            amplitude_n,
+            offset_n,
+            first_rise_s: p.first_rise_s.rem_euclid(p.period_s),
+        },
+        WaveShape::Sine => {
+            let shift = if gain < 0.0 { 0.5 * p.period_s } else { 0.0 };
+            Disturbance::Sine {
+                period_s: p.period_s,
+                amplitude_n,
+                offset_n,
+                first_rise_s: (p.first_rise_s + shift).rem_euclid(p.period_s),
+            }
+        }
+    }
+}
+
+/// The evidence of a periodic wave.
+fn wave_evidence(w: &Shaped) -> Evidence {
+    let (peak_ratio, explained) = w.peak_explained;
+    let (shape, period_s, amplitude_n, rise_s, duty) = match &w.dist {
+        Disturbance::Square {
+            period_s,
+            duty,
+            amplitude_n,
+            first_rise_s,
+            ..
+        } => ("square", *period_s, *amplitude_n, *first_rise_s, *duty),
+        Disturbance::Sine {
+            period_s,
+            amplitude_n,
+            first_rise_s,
+            ..
+        } => ("sine", *period_s, *amplitude_n, *first_rise_s, 0.5),
+        _ => ("", 0.0, 0.0, 0.0, 0.0),
+    };
+    let seen = if w.from_position {
+        "the position residual"
+    } else {
+        "the force residual"
+    };
+    Evidence {
+        pass: true,
+        text: format!(
+            "a {shape} force of period {period_s:.4} s and ±{amplitude_n:.2} N no state explains, rising at {rise_s:.3} s (+ k periods), seen in {seen}: {peak_ratio:.0}× the median of its spectrum, {:.0} % of what no state explains",
+            100.0 * explained
+        ),
+        ..Evidence::default()
+    }
+    .with("period_s", period_s)
+    .with("amplitude_n", amplitude_n)
+    .with("first_rise_s", rise_s)
+    .with("duty", duty)
+    .with("peak_ratio", peak_ratio)
+    .with("explained_share", explained)
+    .with("from_position", if w.from_position { 1.0 } else { 0.0 })
+}
+
+/// The part of the residuals no state of the axis explains, and what shape it has: a
+/// periodic wave, level steps or bursts.
+pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
+    let s = ctx.sig;
+    let dt = ctx.eng.split.main.t3_s;
+    let rem_force = s.r_force.as_ref().map(|f| unexplained(s, f));
+    let rem_pos = unexplained(s, &s.r_pos);
+    if let Some(w) = periodic_wave(ctx, rem_force.as_deref(), &rem_pos) {
+        let ev = wave_evidence(&w);
+        return (ev, Some(w));
+    }
+    let rem = rem_force.unwrap_or(rem_pos);
+    let t0 = s.t_s.first().copied().unwrap_or(0.0);
+    let table = |dist| {
+        Some(Shaped {
+            dist,
+            from_position: false,
+            peak_explained: (0.0, 0.0),
+        })
+    };
+    let min_gap = ((0.5 / dt) as usize).max(4);
+    let steps = evidence::steps(&rem, min_gap, 10.0, 10);
+    if !steps.is_empty() {
+        let mut times_s = vec![];
+        let mut levels_n = vec![];
+        let mut level = 0.0;
+        for st in &steps {
+            level -= st.jump;
+            times_s.push(t0 + st.index as f64 * dt);
+            levels_n.push(level);
+        }
+        let ev = Evidence {
+            pass: true,
+            text: format!(
+                "{} level steps in the force no state explains, up to {:.1} N",
+                steps.len(),
+                steps.iter().map(|s| s.jump.abs()).fold(0.0, f64::max)
+            ),
+            ..Evidence::default()
+        }
+        .with("steps", steps.len() as f64);
+        return (ev, table(Disturbance::Steps { times_s, levels_n }));
+    }
+    let window = ((0.02 / dt) as usize).max(4);
+    let bursts = evidence::bursts(&rem, window, 10.0);
+    if bursts.is_empty() || bursts.len() > 400 {
+        return (
+            Evidence::absent(
+                "the force no state explains is neither periodic nor stepped nor bursty",
+            ),
+            None,
+        );
+    }
+    let ev = Evidence {
+        pass: true,
+        text: format!(
+            "{} bursts of force no state explains, {:.1} N rms at most",
+            bursts.len(),
+            bursts.iter().map(|b| b.rms).fold(0.0, f64::max)
+        ),
+        ..Evidence::default()
+    }
+    .with("bursts", bursts.len() as f64);
+    let windows = bursts
+        .iter()
+        .map(|b| ForceEvent {
+            i0: b.start,
+            i1: b.end,
+            force_n: -b.mean,
+        })
+        .collect();
+    (ev, table(Disturbance::Windows(windows)))
+}
+
+/// Where a wave read off the position residual acts: on the table or in the amplifier's
+/// output. The two move the axis alike and differ only in the force channel, so one replay
+/// of each decides (on a record without force they are the same; the table is kept).
+fn place(ctx: &Context, shaped: Shaped) -> Result<Disturbance, DiagnoseError> {
+    let on_table = shaped.dist;
+    if !shaped.from_position || !ctx.eng.has_force {
+        return Ok(on_table);
+    }
+    let in_command = Disturbance::InCommand(Box::new(on_table.clone()));
+    let cost = |d: &Disturbance| -> Result<f64, DiagnoseError> {
+        let mut c = ctx.base.clone();
+        c.model.disturbance.push(d.clone());
+        Ok(ctx.eng.lm_rows(&ctx.eng.sim_fit(&c)?).norm_squared())
+    };
+    Ok(if cost(&in_command)? < cost(&on_table)? {
+        in_command
+    } else {
+        on_table
+    })
+}
+
+/// The disturbance the detector shaped, placed, its level (and for a wave its edge)
+/// refined on replays.
+pub fn fit(ctx: &Context) -> Result<Option<Fitted>, DiagnoseError> {
+    let (ev, shaped) = detect(ctx);
+    let (Some(shaped), true) = (shaped, ev.pass) else {
+        return Ok(None);
+    };
+    let d = refine(ctx, place(ctx, shaped)?)?;
+    let applied = super::Applied::Disturbance(d.clone(), vec![]);
+    let mut cand = ctx.base.clone();
+    applied.apply(&mut cand);
+    let eval = ctx.eng.evaluate(&cand)?;
+    let (keys, theta) = describe(&d);
+    let mut f = special::fitted(
+        ctx,
+        special::Made {
+            effect: Effect::ExternalDisturbance,
+            cand,
+            eval,
+            keys,
+            theta,
+            applied,
+        },
+        ev,
+    );
+    if matches!(d, Disturbance::InCommand(_)) {
+        f.extra.insert("in_command".into(), 1.0);
+    }
+    // Shape (period, duty, step times or window edges) is found by the detector: counted
+    // as parameters too.
+    f.n_params = f.theta.len().max(3);
+    Ok(Some(f))
+}
+
+/// Samples either side of the detector's edge the refit searches: the detector times the
+/// edge by the residual, which lags the force by the loop's response (EMPS: ~10 ms).
+fn edge_reach_samples(period_s: f64, dt_s: f64) -> isize {
+    let reach_s = (0.05 * period_s).max(0.02).min(0.25 * period_s);
+    (reach_s / dt_s).round().max(1.0) as isize
+}
+
+/// Replays of the base with one more disturbance at a fixed site, as changes of the
+/// solver's rows: the columns of the linear fits below.
+struct Replays<'r, 'c, 'a> {
+    ctx: &'r Context<'c, 'a>,
+    in_command: bool,
+    /// The base's own rows.
+    r0: DVector<f64>,
+}
+
+impl Replays<'_, '_, '_> {
+    /// `d` at this site.
+    fn site(&self, d: Disturbance) -> Disturbance {
+        if self.in_command {
+            Disturbance::InCommand(Box::new(d))
+        } else {
+            d
+        }
+    }
+
+    /// How adding `d` changes the rows.
+    fn change(&self, d: Disturbance) -> Result<DVector<f64>, DiagnoseError> {
+        let mut c = self.ctx.base.clone();
+        c.model.disturbance.push(self.site(d));
+        Ok(self.ctx.eng.lm_rows(&self.ctx.eng.sim_fit(&c)?) - &self.r0)
+    }
+}
+
+/// A wave's levels (and a square wave's edge) from replays: the residual moves linearly
+/// with a wave's levels (the loop is linear away from friction's switching), so a few
+/// replays give them by least squares, which a gradient solver on the edge would not (the
+/// edge acts only at whole samples, so its finite differences are mostly zero).
+fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
+    let (inner, in_command) = match d {
+        Disturbance::InCommand(inner) => (*inner, true),
+        other => (other, false),
+    };
+    let rp = Replays {
+        ctx,
+        in_command,
+        r0: ctx.eng.lm_rows(&ctx.eng.sim_fit(ctx.base)?),
+    };
+    let refined = match inner {
+        Disturbance::Square { .. } => refine_square(&rp, inner)?,
+        Disturbance::Sine { .. } => refine_sine(&rp, inner)?,
+        other => other,
+    };
+    Ok(rp.site(refined))
+}
+
+/// A sine's amplitude, phase and offset: its sine, cosine and constant parts are three
+/// linear columns, so three replays fit them exactly for a linear loop.
+fn refine_sine(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
+    let Disturbance::Sine {
+        period_s,
+        amplitude_n,
+        first_rise_s,
+        ..
+    } = d
+    else {
+        return Ok(d);
+    };
+    let amp = amplitude_n.abs().max(1e-3);
+    let sine = |amplitude_n: f64, offset_n: f64, first_rise_s: f64| Disturbance::Sine {
+        period_s,
+        amplitude_n,
+        offset_n,
+        first_rise_s,
+    };
+    let g_sin = rp.change(sine(amp, 0.0, first_rise_s))?;
+    // A quarter period earlier: the cosine of the same phase.
+    let g_cos = rp.change(sine(amp, 0.0, first_rise_s - 0.25 * period_s))?;
+    let g_offset = rp.change(sine(0.0, amp, first_rise_s))?;
+    let Some((_, x)) = linear_levels(&rp.r0, &[g_sin, g_cos, g_offset]) else {
+        return Ok(d);
+    };
+    // a·sin θ + b·cos θ = R·sin(θ + φ): the up-crossing moves φ/ω earlier.
+    let phi = x[1].atan2(x[0]);
+    let rise = first_rise_s - phi / std::f64::consts::TAU * period_s;
+    Ok(sine(
+        amp * x[0].hypot(x[1]),
+        amp * x[2],
+        rise.rem_euclid(period_s),
+    ))
+}
+
+/// A square wave's level, offset and edge: for each trial edge one replay of the wave gives
+/// the best level and offset there; the edge is scanned coarsely and then narrowed by
+/// halving steps.
+fn refine_square(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
+    let Disturbance::Square {
+        period_s,
+        duty,
+        amplitude_n,
+        first_rise_s,
+        ..
+    } = d
+    else {
+        return Ok(d);
+    };
+    let amp = amplitude_n.abs().max(1e-3);
+    let square = |amplitude_n: f64, offset_n: f64, first_rise_s: f64| Disturbance::Square {
+        period_s,
+        duty,
+        amplitude_n,
+        offset_n,
+        first_rise_s,
+    };
+    let g_offset = rp.change(square(0.0, amp, first_rise_s))?;
+    let dt_s = rp.ctx.eng.split.main.t3_s;
+    // (cost, level, offset) with the edge `shift` samples from the detector's.
+    let at = |shift: isize| -> Result<(f64, f64, f64), DiagnoseError> {
+        let rise = first_rise_s + shift as f64 * dt_s;
+        let g_wave = rp.change(square(amp, 0.0, rise))?;
+        Ok(match linear_levels(&rp.r0, &[g_wave, g_offset.clone()]) {
+            Some((cost, x)) => (cost, x[0] * amp, x[1] * amp),
+            None => (f64::INFINITY, 0.0, 0.0),
+        })
+    };
+    let reach = edge_reach_samples(period_s, dt_s);
+    let mut step = (reach / 5).max(1);
+    let mut best = (0isize, at(0)?);
+    let mut k = -reach;
+    while k <= reach {
+        if k != 0 {
+            let v = at(k)?;
+            if v.0 < best.1.0 {
+                best = (k, v);
+            }
+        }
+        k += step;
+    }
+    while step > 1 {
+        step /= 2;
+        let centre = best.0;
+        for k in [centre - step, centre + step] {
+            let v = at(k)?;
+            if v.0 < best.1.0 {
+                best = (k, v);
+            }
+        }
+    }
+    let (shift, (_, level, offset_n)) = best;
+    let rise = first_rise_s + shift as f64 * dt_s;
+    // A negative level is the same wave with its halves swapped.
+    Ok(if level >= 0.0 {
+        square(level, offset_n, rise.rem_euclid(period_s))
+    } else {
+        Disturbance::Square {
+            period_s,
+            duty: 1.0 - duty,
+            amplitude_n: -level,
+            offset_n,
+            first_rise_s: (rise + duty * period_s).rem_euclid(period_s),
+        }
+    })
+}
+
+/// The least-squares `x` of `r0 + Σ x_j·cols_j ≈ 0` (nalgebra's SVD), with the sum of
+/// squares left: (cost, x). None when the system is degenerate.
+fn linear_levels(r0: &DVector<f64>, cols: &[DVector<f64>]) -> Option<(f64, DVector<f64>)> {
+    let a = DMatrix::from_columns(cols);
+    let x = a.clone().svd(true, true).solve(&(-r0), 1e-12).ok()?;
+    let cost = (r0 + &a * &x).norm_squared();
+    (cost.is_finite() && x.iter().all(|v| v.is_finite())).then_some((cost, x))
+}
+
+/// Report keys and values of a disturbance.
+fn describe(d: &Disturbance) -> (Vec<String>, Vec<f64>) {
+    let keys = |k: &[&str]| k.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
+    match d {
+        Disturbance::InCommand(inner) => describe(inner),
+        Disturbance::Square {
+            period_s,
+            duty,
+            amplitude_n,
+            offset_n,
+            first_rise_s,
+        } => (
+            keys(&[
+                "period_s",
+                "amplitude_n",
+                "first_rise_s",
+                "duty",
+                "offset_n",
+            ]),
+            vec![*period_s, *amplitude_n, *first_rise_s, *duty, *offset_n],
+        ),
+        Disturbance::Sine {
+            period_s,
+            amplitude_n,
+            offset_n,
+            first_rise_s,
+        } => (
+            keys(&["period_s", "amplitude_n", "first_rise_s", "offset_n"]),
+            vec![*period_s, *amplitude_n, *first_rise_s, *offset_n],
+        ),
+        Disturbance::Steps { times_s, levels_n } => (
+            keys(&["steps", "largest_level_n"]),
+            vec![
+                times_s.len() as f64,
+                levels_n.iter().fold(0.0f64, |m, l| m.max(l.abs())),
+            ],
+        ),
+        Disturbance::Windows(w) => (
+            keys(&["windows", "largest_force_n"]),
+            vec![
+                w.len() as f64,
+                w.iter().fold(0.0f64, |m, e| m.max(e.force_n.abs())),
+            ],
+        ),
+    }
+}
