@@ -6,7 +6,6 @@ use axisbench::diagnose::evidence::{
     periodic_in_time, regress, resonance, steps,
 };
 use std::f64::consts::{PI, TAU};
-use std::time::{Duration, Instant};
 
 /// Small deterministic generator (xorshift64*), Gaussian by Box–Muller.
 struct Rng(u64);
@@ -493,87 +492,6 @@ fn evidence_degenerate_input_gives_none_or_empty() {
     let jitter: Vec<f64> = (0..300).map(|k| 0.1 + (k % 3) as f64 * 1e-6).collect();
     let g = grid(&jitter, 1e-7, 0.02).expect("three levels on a grid");
     assert!(rel(g.quantum, 1e-6) < 1e-3, "{g:?}");
-}
-
-/// Best of three runs (the machine is shared; the first run also plans the FFTs).
-fn timed<T>(what: &str, mut f: impl FnMut() -> T) -> Duration {
-    let best = (0..3)
-        .map(|_| {
-            let t = Instant::now();
-            std::hint::black_box(f());
-            t.elapsed()
-        })
-        .min()
-        .unwrap_or(Duration::MAX);
-    eprintln!("{what}: {best:?}");
-    best
-}
-
-/// Every detector on 60 000 samples within 50 ms (release), and bounded on 1 000 000.
-#[test]
-fn evidence_detectors_are_fast() {
-    let n = 60_000;
-    let mut rng = Rng::new(80);
-    let y: Vec<f64> = (0..n)
-        .map(|k| (TAU * k as f64 / 1234.5).sin() + rng.gauss())
-        .collect();
-    let x: Vec<f64> = path();
-    let t: Vec<f64> = (0..n).map(|k| k as f64 * 1e-3).collect();
-    let q: Vec<f64> = y.iter().map(|v| (v / 1e-3).round() * 1e-3).collect();
-    let ones = vec![1.0; n];
-    let budget = if cfg!(debug_assertions) {
-        Duration::from_secs(5)
-    } else {
-        Duration::from_millis(50)
-    };
-    let runs: Vec<(&str, Duration)> = vec![
-        (
-            "periodic_in_time",
-            timed("time", || periodic_in_time(&y, 0.0, 1e-3, 0.05, 10.0)),
-        ),
-        (
-            "periodic_in_position",
-            timed("pos", || periodic_in_position(&x, &y, 2e-3, 30e-3, 3)),
-        ),
-        ("grid", timed("grid", || grid(&q, 1e-4, 0.02))),
-        ("steps", timed("steps", || steps(&y, 100, 6.0, 20))),
-        ("bursts", timed("bursts", || bursts(&y, 200, 3.0))),
-        ("lag", timed("lag", || lag(&y, &y[3..], 50))),
-        (
-            "resonance",
-            timed("resonance", || resonance(&y, 1e-3, 5.0, 400.0, Some(&q))),
-        ),
-        ("drift", timed("drift", || drift(&t, &y, Some(&x)))),
-        (
-            "regress",
-            timed("regress", || regress(&[&y, &x, &ones], &q, 10.0)),
-        ),
-    ];
-    for (name, el) in runs {
-        assert!(el < budget, "{name} took {el:?} on {n} samples");
-    }
-    // 1M samples: bounded by the caps (a loose bound: the machine is shared).
-    let big: Vec<f64> = (0..1_000_000)
-        .map(|k| (TAU * k as f64 / 1234.5).sin() + rng.gauss())
-        .collect();
-    let tb: Vec<f64> = (0..big.len()).map(|k| k as f64 * 1e-3).collect();
-    let big_budget = budget * 20;
-    let runs: Vec<Duration> = vec![
-        timed("1M time", || periodic_in_time(&big, 0.0, 1e-3, 0.05, 10.0)),
-        timed("1M pos", || periodic_in_position(&tb, &big, 1e-2, 10.0, 3)),
-        timed("1M grid", || grid(&big, 1e-4, 0.02)),
-        timed("1M steps", || steps(&big, 100, 6.0, 1000)),
-        timed("1M bursts", || bursts(&big, 200, 3.0)),
-        timed("1M lag", || lag(&big, &big[3..], 50_000)),
-        timed("1M resonance", || {
-            resonance(&big, 1e-3, 5.0, 400.0, Some(&big))
-        }),
-        timed("1M drift", || drift(&tb, &big, Some(&tb))),
-        timed("1M regress", || regress(&[&big, &tb], &big, 10.0)),
-    ];
-    for el in runs {
-        assert!(el < big_budget, "{el:?} on 1M samples");
-    }
 }
 
 /// Finite values of any magnitude: zeros, subnormals, ordinary and near-overflow values.
