@@ -12,7 +12,7 @@ use nalgebra::DMatrix;
 
 use crate::comp::{ServoComp, ServoCompCtx, ServoCompOut};
 use crate::plant::{AxisPlant, MechState, PlantOut, Sensor, Start};
-use crate::preset::{AxisParams, Feedback};
+use crate::preset::{AxisParams, Coupling, Feedback};
 use crate::servo::{Servo, ServoInput, ServoOutput};
 
 /// What one axis's loop reads from the NC in one T3 period.
@@ -362,7 +362,26 @@ fn linear_part(a: &AxisParams) -> AxisParams {
 /// within a few decades of each other: unscaled, forces of 1e6 N against positions of 1 m make
 /// the eigen-solver report poles outside the unit circle for loops that are stable.
 pub fn closed_loop_matrix(a: &AxisParams, t3_s: f64) -> DMatrix<f64> {
-    let lin = linear_part(a);
+    matrix_of(&linear_part(a), t3_s)
+}
+
+/// The axis while the motor crosses the backlash gap: the table is left behind, so the
+/// loop drives the motor's own inertia alone. A motor far lighter than the table can make
+/// this loop unstable while the coupled one is stable; the machine then diverges in the
+/// first reversal, so the check must see it. `None` when nothing separates motor and table.
+fn in_gap_part(a: &AxisParams) -> Option<AxisParams> {
+    if !a.lost_motion.enabled {
+        return None;
+    }
+    let mut l = linear_part(a);
+    l.drive.coupling = Coupling::Rigid;
+    l.drive.table_mass_kg = 0.0;
+    Some(l)
+}
+
+/// The transition matrix of one T3 period of the linear axis `lin`, from unit states.
+fn matrix_of(lin: &AxisParams, t3_s: f64) -> DMatrix<f64> {
+    let lin = lin.clone();
     let proto = AxisLoop::new(
         &lin,
         t3_s,
@@ -405,8 +424,18 @@ pub fn closed_loop_matrix(a: &AxisParams, t3_s: f64) -> DMatrix<f64> {
 const EIGEN_MAX_ITER: usize = 10_000;
 
 /// The largest pole magnitude |z| of the axis loop's linear part at T3 = `t3_s`.
+///
+/// With backlash on, this is the larger of the coupled loop's radius and the radius of the
+/// loop on the motor alone, as it runs while crossing the gap.
 pub fn spectral_radius(a: &AxisParams, t3_s: f64) -> Result<f64, String> {
-    let m = closed_loop_matrix(a, t3_s);
+    let coupled = radius_of(closed_loop_matrix(a, t3_s), t3_s)?;
+    match in_gap_part(a) {
+        Some(gap) => Ok(coupled.max(radius_of(matrix_of(&gap, t3_s), t3_s)?)),
+        None => Ok(coupled),
+    }
+}
+
+fn radius_of(m: DMatrix<f64>, t3_s: f64) -> Result<f64, String> {
     if m.iter().any(|v| !v.is_finite()) {
         return Err(format!(
             "the closed loop at T3 = {t3_s} s has a non-finite transition matrix; \
@@ -427,15 +456,26 @@ pub fn spectral_radius(a: &AxisParams, t3_s: f64) -> Result<f64, String> {
         .fold(0.0_f64, f64::max))
 }
 
-/// Checks that every pole of the axis loop's linear part lies inside the unit circle.
+/// Checks that every pole of the axis loop's linear part lies inside the unit circle, for
+/// the coupled axis and, with backlash on, for the motor alone in the gap.
 pub fn check_stability(a: &AxisParams, t3_s: f64) -> Result<(), String> {
-    let radius = spectral_radius(a, t3_s)?;
-    if radius.is_finite() && radius < 1.0 - 1e-9 {
-        Ok(())
-    } else {
-        Err(format!(
+    let stable = |r: f64| r.is_finite() && r < 1.0 - 1e-9;
+    let radius = radius_of(closed_loop_matrix(a, t3_s), t3_s)?;
+    if !stable(radius) {
+        return Err(format!(
             "the discrete closed loop at T3 = {t3_s} s is unstable: largest pole |z| = {radius:.4} ≥ 1 \
              (lower kp_per_s / kv_n_s_per_m / ki_per_s, or shorten T3)"
-        ))
+        ));
     }
+    if let Some(gap) = in_gap_part(a) {
+        let radius = radius_of(matrix_of(&gap, t3_s), t3_s)?;
+        if !stable(radius) {
+            return Err(format!(
+                "the discrete loop on the motor alone, as it runs while crossing the backlash \
+                 gap, is unstable at T3 = {t3_s} s: largest pole |z| = {radius:.4} ≥ 1 (raise \
+                 drive.motor_inertia_kgm2, lower kp_per_s / kv_n_s_per_m / ki_per_s, or shorten T3)"
+            ));
+        }
+    }
+    Ok(())
 }

@@ -178,7 +178,7 @@ fn overrides_set_nested_fields_by_axis_name() {
 }
 
 proptest::proptest! {
-    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(1000))]
 
     /// Every numeric field of every shipped preset, set to anything from 1e-300 to 1e300
     /// with either sign (or 0, NaN, inf): the value is either accepted inside its stated
@@ -225,7 +225,7 @@ proptest::proptest! {
                     .collect();
                 if let Ok(mut m) = axisbench::Machine::new(&q, &programs) {
                     m.set_recording(false);
-                    m.run_steps(400).unwrap();
+                    m.run_steps(400).map_err(|e| proptest::test_runner::TestCaseError::fail(format!("{path} = {x}: {e}")))?;
                     for a in &m.axes {
                         proptest::prop_assert!(a.pos_m.is_finite(), "{path} = {x}: position not finite");
                     }

@@ -151,3 +151,62 @@ fn absurd_gains_end_the_check_with_an_error_not_a_hang() {
         "{e}"
     );
 }
+
+/// With backlash, the motor crosses the gap alone. A motor far lighter than its load can
+/// make that loop unstable while the coupled one is fine: the check must refuse it, and the
+/// machine must agree on both sides of the boundary it finds.
+#[test]
+fn the_check_sees_the_motor_alone_in_the_backlash_gap() {
+    let (mut a, t3) = linear_axis();
+    a.lost_motion.enabled = true;
+    let set = |a: &mut AxisParams, j: f64| a.drive.motor_inertia_kgm2 = j;
+    let r = |j: f64| {
+        let mut b = a.clone();
+        set(&mut b, j);
+        spectral_radius(&b, t3).expect("poles")
+    };
+    // Heavier motor is more stable here: bisection with the stable side high.
+    let (mut lo, mut hi) = (1e-14f64.ln(), a.drive.motor_inertia_kgm2.ln());
+    assert!(r(lo.exp()) > 1.0 && r(hi.exp()) < 1.0);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if r(mid.exp()) < 1.0 {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    let j0 = (0.5 * (lo + hi)).exp();
+    for (factor, stable) in [(1.05, true), (0.95, false)] {
+        let mut b = a.clone();
+        set(&mut b, j0 * factor);
+        let verdict = check_stability(&b, t3);
+        assert_eq!(
+            verdict.is_ok(),
+            stable,
+            "motor inertia {factor}× the boundary {j0} kg·m²: {verdict:?}"
+        );
+        let g = growth(&b, t3, 200_000);
+        if stable {
+            assert!(
+                g < 1e-3,
+                "stable by the check, but the offset is {g:.3e}× its start"
+            );
+        } else {
+            let e = verdict.expect_err("unstable");
+            assert!(
+                e.contains("backlash gap") && e.contains("motor_inertia_kgm2"),
+                "{e}"
+            );
+            assert!(
+                g > 1e3,
+                "unstable by the check, but the offset is only {g:.3e}× its start"
+            );
+        }
+    }
+    // Without backlash nothing separates the motor from the table: the same light motor is fine.
+    let mut rigid = a.clone();
+    rigid.lost_motion.enabled = false;
+    set(&mut rigid, j0 * 0.5);
+    assert!(check_stability(&rigid, t3).is_ok());
+}
