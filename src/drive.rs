@@ -373,10 +373,15 @@ fn in_gap_part(a: &AxisParams) -> Option<AxisParams> {
     if !a.lost_motion.enabled {
         return None;
     }
+    Some(motor_alone(a))
+}
+
+/// The linear part of `a` with the table taken away: the motor's inertia alone.
+fn motor_alone(a: &AxisParams) -> AxisParams {
     let mut l = linear_part(a);
     l.drive.coupling = Coupling::Rigid;
     l.drive.table_mass_kg = 0.0;
-    Some(l)
+    l
 }
 
 /// The transition matrix of one T3 period of the linear axis `lin`, from unit states.
@@ -436,6 +441,17 @@ pub fn spectral_radius(a: &AxisParams, t3_s: f64) -> Result<f64, String> {
 }
 
 fn radius_of(m: DMatrix<f64>, t3_s: f64) -> Result<f64, String> {
+    Ok(poles_of(m, t3_s)?
+        .iter()
+        .map(|z| z.norm())
+        .fold(0.0_f64, f64::max))
+}
+
+/// The poles (eigenvalues) of a transition matrix.
+fn poles_of(
+    m: DMatrix<f64>,
+    t3_s: f64,
+) -> Result<nalgebra::DVector<nalgebra::Complex<f64>>, String> {
     if m.iter().any(|v| !v.is_finite()) {
         return Err(format!(
             "the closed loop at T3 = {t3_s} s has a non-finite transition matrix; \
@@ -449,11 +465,22 @@ fn radius_of(m: DMatrix<f64>, t3_s: f64) -> Result<f64, String> {
                  T3 = {t3_s} s; the gains are out of any physical range"
             )
         })?;
-    Ok(schur
-        .complex_eigenvalues()
+    Ok(schur.complex_eigenvalues())
+}
+
+/// The least damped mode of the loop on the motor alone (the table left behind, as while
+/// crossing a backlash gap), whether or not the preset has backlash on: (|z|, frequency in
+/// Hz). A loop near |z| = 1 here is one that play can make hunt: each impact on a flank
+/// kicks a mode that hardly decays before the next. The diagnosis uses it to tell play
+/// from other causes of a steady tone in the force.
+pub fn motor_alone_mode(a: &AxisParams, t3_s: f64) -> Result<(f64, f64), String> {
+    let poles = poles_of(matrix_of(&motor_alone(a), t3_s), t3_s)?;
+    let z = poles
         .iter()
-        .map(|z| z.norm())
-        .fold(0.0_f64, f64::max))
+        .max_by(|a, b| a.norm().total_cmp(&b.norm()))
+        .copied()
+        .unwrap_or_default();
+    Ok((z.norm(), z.arg().abs() / (std::f64::consts::TAU * t3_s)))
 }
 
 /// Checks that every pole of the axis loop's linear part lies inside the unit circle, for

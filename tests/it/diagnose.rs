@@ -249,6 +249,60 @@ fn a_force_in_the_amplifiers_output_moves_the_axis_like_one_on_the_table() {
 
 /// In-distribution: cases from our own model (the same equations the candidates fit), so
 /// this is the easy check; the honest figure is `diagnose-eval --generator independent`.
+/// Play in a drive whose motor, alone inside the play, is a lightly damped loop (EMPS: the
+/// motor is 5 kg of 95): the independent generator's drive hunts, a steady tone in the
+/// force. A limit cycle's phase cannot be replayed, so the tone itself must name the play,
+/// with the loop's pole that explains it. A quantized record's force jitter is no tone.
+#[test]
+fn a_hunting_drive_is_diagnosed_as_backlash_and_a_quantized_one_is_not() {
+    use axisbench::indep::{self, CaseSpec, EffectPick};
+    let diagnose_case = |effect: &str, formula: &str, seed: u64| {
+        let pick = EffectPick::new(effect, Some(formula)).expect("known effect");
+        let mut s = CaseSpec::new("hunt", seed, vec![pick]);
+        s.duration_s = Some(24.0);
+        let c = indep::generate(&s).expect("case generates");
+        let axis = diagnose::pick_axis(&c.trace, "hunt.csv", &c.preset, None).expect("axis");
+        let rec = Record::for_preset(&c.trace, "hunt.csv", &c.preset, &axis).expect("record");
+        run(&c.preset, &rec, None, &Options::default())
+    };
+    for (formula, seed) in [("two_mass_dead_zone", 11), ("rigid_lost_motion", 12)] {
+        let r = diagnose_case("backlash", formula, seed);
+        assert_eq!(r.verdict, "backlash", "{formula}: {:#?}", r.ranking);
+        let b = r
+            .ranking
+            .iter()
+            .find(|e| e.effect == "backlash")
+            .expect("backlash ranked");
+        let fig = |k: &str| b.evidence_figures.get(k).copied().unwrap_or(f64::NAN);
+        assert!(b.evidence.contains("hunts"), "{formula}: {}", b.evidence);
+        // The tone lies between the motion's content and the record's Nyquist frequency,
+        // and holds nearly all the power there.
+        assert!(
+            (100.0..500.0).contains(&fig("hunting_hz")),
+            "{:?}",
+            b.evidence_figures
+        );
+        assert!(fig("hunting_share") >= 0.8, "{:?}", b.evidence_figures);
+        // The nominal's motor-alone loop: |z| just under 1 (0.996 as shipped) at a quarter of
+        // the sample rate, moved a little by the calibration.
+        let radius = fig("motor_alone_pole_radius");
+        assert!((0.9..1.05).contains(&radius), "{:?}", b.evidence_figures);
+        assert!(
+            (200.0..300.0).contains(&fig("motor_alone_pole_hz")),
+            "{:?}",
+            b.evidence_figures
+        );
+    }
+    let r = diagnose_case("quantization", "round", 13);
+    let b = r.ranking.iter().find(|e| e.effect == "backlash");
+    assert!(
+        b.is_none_or(|b| !b.evidence_figures.contains_key("hunting_share")),
+        "quantization read as hunting: {:#?}",
+        r.ranking
+    );
+    assert_ne!(r.verdict, "backlash");
+}
+
 #[test]
 fn blind_cases_are_diagnosed() {
     let cfg = EvalConfig {

@@ -3,7 +3,7 @@
 
 use axisbench::diagnose::evidence::{
     self, Burst, Periodic, WaveShape, bursts, drift, grid, lag, periodic_in_position,
-    periodic_in_time, regress, resonance, steps,
+    periodic_in_time, regress, resonance, steps, tone,
 };
 use std::f64::consts::{PI, TAU};
 
@@ -347,6 +347,39 @@ fn evidence_resonance_at_85_hz() {
     let r = resonance(&y, 1e-3, 20.0, 300.0, Some(&white)).expect("resonance");
     assert!(rel(r.freq_hz, 85.0) < 0.02, "{r:?}");
     assert!(r.ref_ratio.is_some_and(|q| q > 20.0), "{r:?}");
+}
+
+/// A hunting drive's force: one steady tone (its phase wandering slowly, as a limit cycle's
+/// does) over sensor noise. The tone holds the band's power, at its frequency and rms; white
+/// noise and a lightly damped mode excited by noise (a resonance, not a limit cycle) do not.
+#[test]
+fn evidence_tone_of_a_limit_cycle_and_not_of_noise_or_a_resonance() {
+    let mut rng = Rng::new(60);
+    let (f_hz, amp_n, dt) = (250.0, 30.0, 1e-3);
+    let mut phase = 0.0;
+    let y: Vec<f64> = (0..24_000)
+        .map(|_| {
+            phase += TAU * f_hz * dt + 0.01 * rng.gauss();
+            amp_n * phase.sin() + rng.gauss()
+        })
+        .collect();
+    let t = tone(&y, dt, 50.0, 500.0).expect("tone");
+    assert!((t.freq_hz - f_hz).abs() < 1.0, "{t:?}");
+    assert!(t.share > 0.95, "{t:?}");
+    // A sine's rms is amp/√2.
+    assert!(rel(t.rms, amp_n / 2f64.sqrt()) < 0.05, "{t:?}");
+    for seed in 61..64 {
+        let w = Rng::new(seed).noise(24_000, 1.0);
+        let t = tone(&w, dt, 50.0, 500.0).expect("spectrum");
+        assert!(t.share < 0.1, "white noise: {t:?}");
+    }
+    let r = resonant(24_000, 250.0, 0.05, dt, 65);
+    let t = tone(&r, dt, 50.0, 500.0).expect("spectrum");
+    assert!(t.share < 0.8, "a resonance excited by noise: {t:?}");
+    assert!(
+        tone(&[1.0; 100], dt, 50.0, 500.0).is_none(),
+        "a constant has no tone"
+    );
 }
 
 #[test]

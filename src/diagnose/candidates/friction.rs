@@ -240,8 +240,64 @@ fn stroke(ctx: &Context) -> Evidence {
     .with("t", t)
 }
 
-/// Backlash: the residual gathers at the reversals, where the drive crosses its play.
+/// Share of the force residual's power above [`HUNT_F_LO_HZ`] that one tone must hold for
+/// the drive to count as hunting (white noise: a few per cent; measured limit cycles
+/// 0.95–1.0, quantization jitter 0.1–0.3).
+const HUNT_SHARE: f64 = 0.8;
+
+/// The tone's rms must be at least this share of the measured force's spread: a hunting
+/// drive's is tens of per cent; a faint line in a quiet record is not play.
+const HUNT_REL_RMS: f64 = 0.05;
+
+/// The motor-alone loop must be this lightly damped (largest |z|) for play to keep it
+/// ringing between impacts.
+const HUNT_MIN_RADIUS: f64 = 0.9;
+
+/// Lowest frequency of the hunting band, Hz (below: the motion's own content).
+const HUNT_F_LO_HZ: f64 = 50.0;
+
+/// Backlash in a loop that hunts: the motor, alone while it crosses the play, is a lightly
+/// damped loop, and every impact on a flank kicks it again, so the force carries one steady
+/// tone that no model without play has. A limit cycle cannot be replayed sample by sample
+/// (its phase wanders), so this signature, like quantization's grid, is proof on its own.
+/// None when the record has no force or the drive does not hunt.
+fn hunting_evidence(ctx: &Context) -> Option<Evidence> {
+    let y = ctx.sig.r_force.as_deref()?;
+    let dt = ctx.eng.split.main.t3_s;
+    let t = evidence::tone(y, dt, HUNT_F_LO_HZ, 0.5 / dt)?;
+    let f = ctx.eng.split.main.force_n.as_deref()?;
+    let m = f.iter().sum::<f64>() / f.len().max(1) as f64;
+    let spread = (f.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / f.len().max(1) as f64).sqrt();
+    let model = &ctx.base.model;
+    let (radius, mode_hz) = crate::drive::motor_alone_mode(&model.axis, model.t3_s).ok()?;
+    let pass = t.share >= HUNT_SHARE && t.rms >= HUNT_REL_RMS * spread && radius >= HUNT_MIN_RADIUS;
+    pass.then(|| {
+        Evidence {
+            pass: true,
+            text: format!(
+                "the drive hunts: a steady {:.0} Hz tone of {:.1} N rms holds {:.0} % of the force residual above {HUNT_F_LO_HZ:.0} Hz; the loop on the motor alone, as it runs inside the play, has its least damped pole at |z| = {radius:.3} ({mode_hz:.0} Hz), so each impact on a flank keeps it ringing",
+                t.freq_hz,
+                t.rms,
+                100.0 * t.share
+            ),
+            ..Evidence::default()
+        }
+        .with("hunting_hz", t.freq_hz)
+        .with("hunting_rms_n", t.rms)
+        .with("hunting_share", t.share)
+        .with("motor_alone_pole_radius", radius)
+        .with("motor_alone_pole_hz", mode_hz)
+    })
+}
+
+/// Backlash: the residual gathers at the reversals, where the drive crosses its play, or
+/// the drive hunts across it (see `hunting_evidence`).
 pub fn reversal_evidence(ctx: &Context, effect: Effect) -> Evidence {
+    if effect == Effect::Backlash
+        && let Some(e) = hunting_evidence(ctx)
+    {
+        return e;
+    }
     let s = ctx.sig;
     let y: &[f64] = match &s.r_force {
         Some(f) => f,

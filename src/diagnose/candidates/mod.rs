@@ -495,10 +495,19 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         // harmonics) is not also charged the full per-parameter penalty.
         s.score = s.shrink - PENALTY_WITH_SIGNATURE * f.n_params as f64;
     }
+    let hunting = f
+        .evidence
+        .figures
+        .get("hunting_share")
+        .copied()
+        .filter(|_| f.evidence.pass);
     s.significant = if f.effect == Effect::Quantization {
         // Rounding cannot be predicted sample by sample, so modelling the grid does not
         // shrink the residual; the grid is proven by the positions themselves.
         f.evidence.pass
+    } else if hunting.is_some() {
+        // Nor can a limit cycle's phase: the steady tone proves the play.
+        true
     } else {
         let min = if has_shape_test(f.effect) {
             MIN_SHRINK_WITH_SHAPE
@@ -507,6 +516,9 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         };
         f.evidence.pass && s.score >= min && fit_a < fit_b
     };
+    if let Some(share) = hunting {
+        s.score = s.score.max(MIN_SHRINK + 0.5 * share);
+    }
     if f.effect == Effect::Quantization && s.significant {
         s.score = s.score.max(
             MIN_SHRINK

@@ -110,6 +110,60 @@ pub fn resonance(
     (out.freq_hz.is_finite() && out.damping_ratio.is_finite()).then_some(out)
 }
 
+/// A steady tone: one narrow peak holding most of a band's power.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tone {
+    /// Peak frequency (bin centre), Hz.
+    pub freq_hz: f64,
+    /// Share of the band's power within ±5 % (and ±2 bins) of the peak: near 1 for a limit
+    /// cycle, a few per cent for white noise.
+    pub share: f64,
+    /// Rms of y within that narrow band, in y's unit.
+    pub rms: f64,
+}
+
+/// The band [f_lo_hz, f_hi_hz]'s largest peak in y's Welch power spectrum (as in
+/// [`resonance`]), with the share of the band's power it holds and its rms. Where
+/// `resonance` asks whether a peak stands out of the band's median (a lightly damped mode
+/// excited now and then also does), this asks whether the band *is* that one peak, as it is
+/// when a loop hunts. None under the same conditions as `resonance`.
+pub fn tone(y: &[f64], dt_s: f64, f_lo_hz: f64, f_hi_hz: f64) -> Option<Tone> {
+    let n = y.len();
+    if n < SEG_MIN || !(positive(dt_s) && dt_s.is_finite()) || !ordered(0.0, f_lo_hz) {
+        return None;
+    }
+    if !positive(f_hi_hz - f_lo_hz) {
+        return None;
+    }
+    let nseg = prev_pow2(n / 8).clamp(SEG_MIN, SEG_MAX).min(prev_pow2(n));
+    let df = 1.0 / (nseg as f64 * dt_s);
+    let k_lo = ((f_lo_hz / df).ceil() as usize).max(1);
+    let k_hi = ((f_hi_hz / df).floor() as usize).min(nseg / 2);
+    if k_hi < k_lo + 4 {
+        return None;
+    }
+    let (yn, scale) = normalized(y)?;
+    let py = welch(&yn, nseg)?;
+    let k = (k_lo..=k_hi).max_by(|&a, &b| py[a].total_cmp(&py[b]))?;
+    let half = ((0.05 * k as f64).ceil() as usize).max(2);
+    let peak: f64 = py[k.saturating_sub(half).max(k_lo)..=(k + half).min(k_hi)]
+        .iter()
+        .sum();
+    let band: f64 = py[k_lo..=k_hi].iter().sum();
+    let total: f64 = py.iter().sum();
+    if !(positive(band) && positive(total)) {
+        return None;
+    }
+    let m = yn.iter().sum::<f64>() / n as f64;
+    let var = yn.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / n as f64;
+    let out = Tone {
+        freq_hz: k as f64 * df,
+        share: peak / band,
+        rms: scale * (var * peak / total).sqrt(),
+    };
+    (out.share.is_finite() && out.rms.is_finite()).then_some(out)
+}
+
 /// Largest power of two ≤ n (1 for n = 0).
 fn prev_pow2(n: usize) -> usize {
     if n < 2 {
