@@ -751,9 +751,12 @@ impl AxisPlant {
             let (v, f) =
                 self.friction
                     .step::<FULL>(&self.body_all, self.v_t, f_load, force_n, scale, add);
+            // Trapezoidal position: exact for the force held over the sub-step. Advancing
+            // by the new velocity alone puts the position half a sub-step ahead of the
+            // continuous motion (0.5 ms at EMPS's 1 ms T3, 9 % of its following error).
+            self.x_t += self.h_s * 0.5 * (self.v_t + v);
             self.v_t = v;
             self.v_m = v;
-            self.x_t += self.h_s * v;
             self.x_m = self.x_t;
             fric = f;
         }
@@ -781,13 +784,14 @@ impl AxisPlant {
             } else {
                 0.0
             };
+            let v_m0 = self.v_m;
             self.v_m += self.motor_h_over_m * (force_n - f_s);
             let (v, f) =
                 self.friction
                     .step::<true>(&self.body_table, self.v_t, f_load, f_s, scale, add);
+            self.x_m += h * 0.5 * (v_m0 + self.v_m);
+            self.x_t += h * 0.5 * (self.v_t + v);
             self.v_t = v;
-            self.x_m += h * self.v_m;
-            self.x_t += h * self.v_t;
             fric = f;
         }
         fric
@@ -812,21 +816,22 @@ impl AxisPlant {
             // Force the motor flank must exert on the table for it to share this motion.
             let f_contact = self.body_table.m_over_h * (v - self.v_t) - f_load_n - f;
             if f_contact * self.contact as f64 >= 0.0 {
+                self.x_m += h * 0.5 * (self.v_m + v);
                 self.v_t = v;
                 self.v_m = v;
-                self.x_m += h * v;
                 self.x_t = self.x_m - self.contact as f64 * b2;
                 return f;
             }
             self.contact = 0;
         }
+        let v_m0 = self.v_m;
         self.v_m += self.motor_h_over_m * force_n;
-        self.x_m += h * self.v_m;
+        self.x_m += h * 0.5 * (v_m0 + self.v_m);
         let (v, f) =
             self.friction
                 .step::<FULL>(&self.body_table, self.v_t, f_load_n, 0.0, scale, add);
+        self.x_t += h * 0.5 * (self.v_t + v);
         self.v_t = v;
-        self.x_t += h * v;
         let gap = self.x_m - self.x_t;
         let side = if gap >= b2 {
             1

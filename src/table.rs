@@ -3,12 +3,17 @@
 //! behave on real controls. Shared by the plant (measured lead error) and the compensations.
 
 /// Interpolates `points` (x strictly increasing) at `x`; holds the end values outside.
-/// An empty table is 0.
+/// An empty table is 0; a NaN `x` gives NaN.
 #[inline]
 pub fn interp(points: &[(f64, f64)], x: f64) -> f64 {
     let (Some(first), Some(last)) = (points.first(), points.last()) else {
         return 0.0;
     };
+    if x.is_nan() {
+        // A diverged state (a replay the fit drove unstable): no point to hold, and the
+        // NaN must reach the caller's finiteness check rather than index before the table.
+        return f64::NAN;
+    }
     if x <= first.0 {
         return first.1;
     }
@@ -47,4 +52,16 @@ pub fn check(path: &str, points: &[(f64, f64)], min_points: usize) -> Vec<(Strin
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_nan_position_gives_nan_not_a_panic() {
+        let t = [(0.0, 1.0), (1.0, 3.0)];
+        assert!(super::interp(&t, f64::NAN).is_nan());
+        assert_eq!(super::interp(&t, 0.5), 2.0);
+        assert_eq!(super::interp(&t, -1.0), 1.0);
+        assert_eq!(super::interp(&t, 2.0), 3.0);
+    }
 }

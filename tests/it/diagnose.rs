@@ -283,12 +283,12 @@ fn a_hunting_drive_is_diagnosed_as_backlash_and_a_quantized_one_is_not() {
             b.evidence_figures
         );
         assert!(fig("hunting_share") >= 0.8, "{:?}", b.evidence_figures);
-        // The nominal's motor-alone loop: |z| just under 1 (0.996 as shipped) at a quarter of
-        // the sample rate, moved a little by the calibration.
+        // The calibrated model's motor-alone loop: on the edge or past it (EMPS as shipped:
+        // |z| = 1.2 at 190 Hz), which is why the drive hunts at all.
         let radius = fig("motor_alone_pole_radius");
-        assert!((0.9..1.05).contains(&radius), "{:?}", b.evidence_figures);
+        assert!((0.9..1.5).contains(&radius), "{:?}", b.evidence_figures);
         assert!(
-            (200.0..300.0).contains(&fig("motor_alone_pole_hz")),
+            (150.0..300.0).contains(&fig("motor_alone_pole_hz")),
             "{:?}",
             b.evidence_figures
         );

@@ -154,7 +154,8 @@ fn absurd_gains_end_the_check_with_an_error_not_a_hang() {
 
 /// With backlash, the motor crosses the gap alone. A motor far lighter than its load can
 /// make that loop unstable while the coupled one is fine: the check must refuse it, and the
-/// machine must agree on both sides of the boundary it finds.
+/// machine must agree on both sides of the boundary it finds (decaying on one, hunting
+/// without end on the other).
 #[test]
 fn the_check_sees_the_motor_alone_in_the_backlash_gap() {
     let (mut a, t3) = linear_axis();
@@ -198,9 +199,12 @@ fn the_check_sees_the_motor_alone_in_the_backlash_gap() {
                 e.contains("backlash gap") && e.contains("motor_inertia_kgm2"),
                 "{e}"
             );
+            // Unstable inside the play, the motor hunts: the impacts on the flanks bound
+            // the swing (frictionless here, so the table is pushed around too), but the
+            // motion never dies out, where the stable side decays to nothing.
             assert!(
-                g > 1e3,
-                "unstable by the check, but the offset is only {g:.3e}× its start"
+                g > 1.0,
+                "unstable by the check, but the offset decayed to {g:.3e}× its start"
             );
         }
     }

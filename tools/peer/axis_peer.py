@@ -217,18 +217,19 @@ def kernel(raw, cmd, n23, c, record, out):
             v, fr = friction_step(a_hm, a_mh, a_vi, a_kin, coul, visc, v_t, force)
             f_contact = t_mh * (v - v_t) - 0.0 - fr
             if f_contact * contact >= 0.0:
+                x_m += h * 0.5 * (v_m + v)
                 v_t = v; v_m = v
-                x_m += h * v
                 x_t = x_m - contact * b2
                 done = True
             else:
                 contact = 0
         if not done:
+            v_m0 = v_m
             v_m += mot_hm * force
-            x_m += h * v_m
+            x_m += h * 0.5 * (v_m0 + v_m)
             v, fr = friction_step(t_hm, t_mh, t_vi, t_kin, coul, visc, v_t, 0.0)
+            x_t += h * 0.5 * (v_t + v)
             v_t = v
-            x_t += h * v
             gap = x_m - x_t
             side = 1 if gap >= b2 else (-1 if gap <= -b2 else 0)
             if side != 0:

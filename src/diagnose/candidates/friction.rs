@@ -6,7 +6,7 @@
 //! correlated over many samples, which the standard errors account for.
 
 use super::{Context, Evidence, MIN_T};
-use crate::diagnose::calibrate::CalParam;
+use crate::diagnose::calibrate::{CalParam, MAX_RATIO_CHANGE};
 use crate::diagnose::effects::Effect;
 use crate::diagnose::engine::corr_length;
 use crate::diagnose::evidence::{self, Regression};
@@ -136,6 +136,27 @@ fn linear(ctx: &Context, effect: Effect) -> Evidence {
         Effect::CoulombFriction if c <= 0.0 => {
             pass = false;
             why = " (negative: less friction than the model, a calibration matter)".into();
+        }
+        Effect::CoulombFriction => {
+            // The nominal has a Coulomb level and the residual only asks for a few per cent
+            // more of it: the nominal is off, as nominals are, not missing an effect.
+            let coulomb = |a: &crate::preset::AxisParams| {
+                if a.friction.enabled {
+                    a.friction.coulomb_n
+                } else {
+                    0.0
+                }
+            };
+            let nominal_n = coulomb(&ctx.nominal.model.axis);
+            let total_n = coulomb(&ctx.base.model.axis) + c;
+            let change = total_n / nominal_n - 1.0;
+            if nominal_n > 0.0 && change.abs() <= MAX_RATIO_CHANGE {
+                pass = false;
+                why = format!(
+                    " (the nominal's {nominal_n:.1} N re-fitted to {total_n:.1} N, {:+.1} %: a calibration matter)",
+                    100.0 * change
+                );
+            }
         }
         Effect::ViscousFriction => {
             let cal_at_bound = ctx.at_bound(CalParam::Viscous);
