@@ -169,7 +169,7 @@ pub fn step_kernel(steps: u64) -> Result<BenchFigure, MachineError> {
         let mut sum = 0.0;
         while left > 0 {
             let m = left.min(n);
-            l.run(&inputs[..m], |_, s| sum += s.plant.pos_m);
+            l.run(&inputs[..m], |_, l| sum += l.sample().plant.pos_m);
             left -= m;
         }
         std::hint::black_box(sum);

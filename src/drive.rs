@@ -134,8 +134,11 @@ impl AxisLoop {
     /// numbers, with less code in the loop.
     #[inline(always)]
     fn step_inline<const FULL: bool>(&mut self, inp: &LoopInput) -> f64 {
-        let o = *self.plant.out();
-        let fb = feedback_of(self.servo.feedback(), &o);
+        // Only the two readings the loop needs, not a copy of the whole output struct:
+        // that copy is one wide load of fields stored one by one at the end of the previous
+        // period, which the store buffer cannot forward (a stall of ~25 % of the step).
+        let o = self.plant.out();
+        let (enc_m, fb) = (o.motor_enc_m, feedback_of(self.servo.feedback(), o));
         let mut add = ServoCompOut::default();
         if FULL && !self.comps.is_empty() {
             let ctx = ServoCompCtx {
@@ -159,32 +162,32 @@ impl AxisLoop {
             cmd_m,
             ff_cmd_m: inp.cmd_raw_m,
             fb_pos_m: fb,
-            motor_pos_m: o.motor_enc_m,
+            motor_pos_m: enc_m,
             vel_add_mps: add.vel_mps,
             force_ff_n: add.torque_nm * self.f_per_t,
             acc_cmd_mps2: inp.acc_cmd_mps2,
         });
+        // The row shows the plant as the sensors saw it at the start of the period.
+        self.plant.out().store(&mut self.sample.plant);
         self.plant.step_with::<FULL>(force, inp.ext_force_n);
-        self.sample = Sample {
-            plant: PlantOut {
-                friction_n: self.plant.out().friction_n,
-                ..o
-            },
-            cmd_raw_m: inp.cmd_raw_m,
-            cmd_nc_m: inp.cmd_nc_m,
-            cmd_m,
-            servo: *self.servo.output(),
-            servo_add: add,
-        };
+        let s = &mut self.sample;
+        s.plant.friction_n = self.plant.out().friction_n;
+        s.cmd_raw_m = inp.cmd_raw_m;
+        s.cmd_nc_m = inp.cmd_nc_m;
+        s.cmd_m = cmd_m;
+        self.servo.output().store(&mut s.servo);
+        s.servo_add.pos_m = add.pos_m;
+        s.servo_add.vel_mps = add.vel_mps;
+        s.servo_add.torque_nm = add.torque_nm;
         force
     }
 
-    /// Runs one period per input, handing each period's trace row to `sink`. The same step
-    /// as [`AxisLoop::step`], in a loop the compiler can keep the loop's state in registers
-    /// for: the machine runs each axis through its T2 period this way, the replay a whole
-    /// record.
+    /// Runs one period per input, handing the loop to `sink` after each period (its trace
+    /// row is [`AxisLoop::sample`]). The same step as [`AxisLoop::step`], in a loop the
+    /// compiler can keep the loop's state in registers for, with the plain/full choice made
+    /// once: the machine runs each axis through its T2 period this way.
     #[inline]
-    pub fn run(&mut self, inputs: &[LoopInput], sink: impl FnMut(usize, &Sample)) {
+    pub fn run(&mut self, inputs: &[LoopInput], sink: impl FnMut(usize, &AxisLoop)) {
         if self.is_plain() {
             self.run_with::<false>(inputs, sink);
         } else {
@@ -196,11 +199,11 @@ impl AxisLoop {
     fn run_with<const FULL: bool>(
         &mut self,
         inputs: &[LoopInput],
-        mut sink: impl FnMut(usize, &Sample),
+        mut sink: impl FnMut(usize, &AxisLoop),
     ) {
         for (j, inp) in inputs.iter().enumerate() {
             self.step_inline::<FULL>(inp);
-            sink(j, &self.sample);
+            sink(j, self);
         }
     }
 

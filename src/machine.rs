@@ -12,7 +12,7 @@
 //! - the trace records the sample.
 
 use crate::comp::{CompStack, PosCompCtx, ServoComp};
-use crate::drive::{AxisLoop, LoopInput, SegmentAcc};
+use crate::drive::{AxisLoop, LoopInput, Sample, SegmentAcc};
 use crate::nc::Channel;
 use crate::nc::program::{self, ProgramError};
 use crate::plant::{Beam, Start};
@@ -161,6 +161,8 @@ const STAGE_ROWS: usize = 128;
 
 struct Recorder {
     every: u32,
+    /// Rows the stage holds: [`STAGE_ROWS`], or one T2 period if that is longer.
+    cap: usize,
     /// Columns of the trace (row length).
     ncols: usize,
     /// Staged rows, row-major, [`STAGE_ROWS`] × `ncols`.
@@ -210,6 +212,8 @@ pub struct Machine {
     comp_fb: Vec<f64>,
     comp_temp: Vec<f64>,
     x_pos: Vec<f64>,
+    /// One axis's loop inputs for a T2 period ([`Machine::run_block`]).
+    block_in: Vec<LoopInput>,
     /// The recorded trace (empty while recording is off).
     pub trace: Trace,
     rec: Option<Recorder>,
@@ -289,6 +293,7 @@ impl Machine {
             comp_fb: vec![0.0; n_ax],
             comp_temp: vec![0.0; n_ax],
             x_pos: vec![0.0; n_ax],
+            block_in: vec![LoopInput::default(); n23 as usize],
             trace: Trace::new(),
             rec: None,
             bulk: false,
@@ -538,10 +543,12 @@ impl Machine {
             })
             .collect();
         let ncols = tr.signals.len();
+        let cap = STAGE_ROWS.max(self.n23 as usize);
         self.rec = Some(Recorder {
             every: self.preset.scenario.trace_every.max(1),
+            cap,
             ncols,
-            stage: vec![0.0; STAGE_ROWS * ncols],
+            stage: vec![0.0; cap * ncols],
             staged: 0,
             axis_cols,
             temp_cols,
@@ -560,11 +567,16 @@ impl Machine {
     /// All programs done, filters drained, and the settle time passed (or the fixed
     /// scenario duration reached).
     pub fn done(&self) -> bool {
+        self.done_at(self.k)
+    }
+
+    /// [`Machine::done`] once `k` steps are done (with the end of the programs as known now).
+    fn done_at(&self, k: u64) -> bool {
         match self.preset.scenario.duration_s {
-            Some(d) => self.t_s() >= d - 0.5 * self.t3_s,
+            Some(d) => k as f64 * self.t3_s >= d - 0.5 * self.t3_s,
             None => match self.end_k {
                 Some(e) => {
-                    (self.k - e) as f64 * self.t3_s
+                    k.saturating_sub(e) as f64 * self.t3_s
                         >= self.preset.scenario.settle_s - 0.5 * self.t3_s
                 }
                 None => false,
@@ -591,10 +603,7 @@ impl Machine {
         }
         let check = u64::from(self.n23).max(64);
         while !self.done() && self.k < max_k {
-            self.step();
-            if self.k.is_multiple_of(check) {
-                self.health()?;
-            }
+            self.advance(max_k - self.k, true, check)?;
         }
         self.health()
     }
@@ -611,13 +620,151 @@ impl Machine {
     fn run_steps_staged(&mut self, n: u64) -> Result<(), MachineError> {
         self.reserve_rows(n);
         let check = u64::from(self.n23).max(64);
-        for _ in 0..n {
-            self.step();
-            if self.k.is_multiple_of(check) {
-                self.health()?;
-            }
+        let end = self.k + n;
+        while self.k < end {
+            self.advance(end - self.k, false, check)?;
         }
         self.health()
+    }
+
+    /// Takes at most `max_steps` steps: a whole T2 period axis by axis where that is allowed
+    /// ([`Machine::block_ready`]), one step otherwise. Checks the health whenever the step
+    /// count passes a multiple of `check`. With `until_done` a block ends at the step after
+    /// which [`Machine::done`] holds, as single steps would.
+    fn advance(
+        &mut self,
+        max_steps: u64,
+        until_done: bool,
+        check: u64,
+    ) -> Result<(), MachineError> {
+        let before = self.k / check;
+        if self.block_ready() {
+            self.run_block(max_steps, until_done);
+        } else {
+            self.step();
+        }
+        if self.k / check != before {
+            self.health()?;
+        }
+        Ok(())
+    }
+
+    /// Whether the next T2 period may run axis by axis ([`Machine::run_block`]): at a T2
+    /// boundary, with no crossbeam (its sag couples the axes every T3) and, while recording,
+    /// no servo-stage compensation (their trace values change every T3; the block records
+    /// only what the axis loop hands on).
+    fn block_ready(&self) -> bool {
+        self.phase == 0
+            && self.beam.is_none()
+            && (self.rec.is_none() || self.axes.iter().all(|a| a.axis_loop.comps().is_empty()))
+    }
+
+    /// One T2 period (or its first `max_steps` T3 steps) as [`Machine::step`] takes it, but
+    /// axis by axis: inside a T2 period an axis's loop depends on nothing but its own
+    /// command buffer, so each axis runs all its periods in one tight loop
+    /// ([`AxisLoop::run`]) without the per-period dispatch, checks and bookkeeping of
+    /// [`Machine::step`]. The NC tick, the inputs, the steps and the trace rows are the same,
+    /// bit for bit (test `a_staged_run_records_the_trace_that_single_steps_record`). PLC
+    /// requests only latch until the next T2 tick, so those falling inside the period are
+    /// handed over at its end.
+    fn run_block(&mut self, max_steps: u64, until_done: bool) {
+        let k0 = self.k;
+        let t0 = self.t_s();
+        self.plc_events(t0);
+        self.tick_t2(t0);
+        if self.end_k.is_none() && self.channels.iter().all(Channel::finished) {
+            self.end_k = Some(k0 + 1);
+        }
+        let n23 = self.n23 as usize;
+        let mut len = n23
+            .min(usize::try_from(max_steps).unwrap_or(usize::MAX))
+            .max(1);
+        if until_done && let Some(s) = (1..len).find(|&s| self.done_at(k0 + s as u64)) {
+            len = s;
+        }
+        if let Some(rec) = &self.rec
+            && rec.staged + n23 > rec.cap
+        {
+            self.flush_rows();
+        }
+        let t3 = self.t3_s;
+        let inputs = &mut self.block_in;
+        for (i, a) in self.axes.iter_mut().enumerate() {
+            let acc = a.seg.acc_mps2();
+            for (j, inp) in inputs[..len].iter_mut().enumerate() {
+                *inp = LoopInput {
+                    t_s: (k0 + j as u64) as f64 * t3,
+                    cmd_raw_m: a.buf_raw[j],
+                    cmd_nc_m: a.buf_comp[j],
+                    acc_cmd_mps2: acc,
+                    ext_force_n: 0.0,
+                };
+            }
+            let sag = a.sag_m;
+            match &mut self.rec {
+                None => a.axis_loop.run(&inputs[..len], |_, _| {}),
+                Some(rec) => {
+                    let (every, n, first) = (u64::from(rec.every), rec.ncols, rec.staged);
+                    let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);
+                    let stage = &mut rec.stage;
+                    let mut r = first;
+                    a.axis_loop.run(&inputs[..len], |j, l| {
+                        if !(k0 + j as u64).is_multiple_of(every) {
+                            return;
+                        }
+                        let s = l.sample();
+                        let fpt = l.force_per_torque();
+                        let vals = AxisSignal::RECORDED
+                            .map(|sig| recorded_value(sig, s, s.plant.pos_m + sag, fpt));
+                        let row = &mut stage[r * n..(r + 1) * n];
+                        row[base..base + vals.len()].copy_from_slice(&vals);
+                        row[temp_col] = l.plant().thermal().temp_c;
+                        r += 1;
+                    });
+                }
+            }
+            a.cmd_nc_m = a.buf_comp[len - 1];
+            a.sample_pos_m = a.axis_loop.sample().plant.pos_m + sag;
+            a.pos_m = a.axis_loop.plant().out().pos_m + sag;
+        }
+        self.k = k0 + len as u64;
+        self.phase = len % n23;
+        if len > 1 {
+            self.plc_events((self.k - 1) as f64 * t3);
+        }
+        self.record_block_rows(k0, len);
+    }
+
+    /// The columns of a block's rows that do not come from the axis loops: time, ambient,
+    /// channel modes, and the position-stage compensations (they step only at the T2 tick).
+    /// The axis columns are already in the stage.
+    fn record_block_rows(&mut self, k0: u64, len: usize) {
+        let Some(rec) = &mut self.rec else { return };
+        let every = u64::from(rec.every);
+        let ambient = self
+            .axes
+            .first()
+            .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
+        let n = rec.ncols;
+        for k in (k0..k0 + len as u64).filter(|k| k.is_multiple_of(every)) {
+            // Read for every recorded row, as `record` does: a sparse value (a thermal
+            // measurement) shows on the first recorded row after it and is then spent.
+            let mut at = 0;
+            for (c, &cn) in self.comps.position.iter().zip(&self.comp_counts) {
+                c.values(&mut rec.comp_vals[at..at + cn]);
+                at += cn;
+            }
+            let row = &mut rec.stage[rec.staged * n..(rec.staged + 1) * n];
+            row[0] = k as f64 * self.t3_s;
+            row[rec.ambient_col] = ambient;
+            for (ch, &c) in self.channels.iter().zip(&rec.mode_cols) {
+                row[c] = ch.mode.as_f64();
+            }
+            for (&col, &v) in rec.comp_cols.iter().zip(&rec.comp_vals) {
+                row[col] = v;
+            }
+            rec.staged += 1;
+        }
     }
 
     /// Makes room for the rows of the next `steps` T3 steps (within the trace's memory
@@ -839,7 +986,9 @@ impl Machine {
         for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
             // `map` over the constant list unrolls, so each column gets its expression
             // without a jump per signal.
-            let vals = AxisSignal::RECORDED.map(|sig| recorded_value(sig, a));
+            let l = &a.axis_loop;
+            let vals = AxisSignal::RECORDED
+                .map(|sig| recorded_value(sig, l.sample(), a.sample_pos_m, l.force_per_torque()));
             row[base..base + vals.len()].copy_from_slice(&vals);
         }
         for (a, &c) in self.axes.iter().zip(&rec.temp_cols) {
@@ -874,7 +1023,7 @@ impl Machine {
             }
         }
         rec.staged += 1;
-        if !self.bulk || rec.staged == STAGE_ROWS {
+        if !self.bulk || rec.staged == rec.cap {
             self.flush_rows();
         }
     }
@@ -966,19 +1115,19 @@ fn new_axis(
     }
 }
 
-/// The value of `sig` in axis `a`'s trace row of the latest period, SI.
+/// The value of `sig` in an axis's trace row: `s` is the row its loop handed on,
+/// `sample_pos_m` the true tool position at the start of the period (plant plus sag), `fpt`
+/// the loop's force per torque. SI.
 #[inline(always)]
-fn recorded_value(sig: AxisSignal, a: &AxisRt) -> f64 {
-    let s = a.axis_loop.sample();
+fn recorded_value(sig: AxisSignal, s: &Sample, sample_pos_m: f64, fpt: f64) -> f64 {
     let o = &s.plant;
-    let fpt = a.axis_loop.force_per_torque();
     match sig {
         AxisSignal::Cmd => s.cmd_raw_m,
         AxisSignal::CmdComp => s.cmd_m,
         AxisSignal::Comp => s.cmd_nc_m - s.cmd_raw_m,
         AxisSignal::MotorPos => o.motor_pos_m,
-        AxisSignal::Pos => a.sample_pos_m,
-        AxisSignal::Err => s.cmd_raw_m - a.sample_pos_m,
+        AxisSignal::Pos => sample_pos_m,
+        AxisSignal::Err => s.cmd_raw_m - sample_pos_m,
         AxisSignal::Ferr => s.servo.ferr_m,
         AxisSignal::Vel => o.vel_mps,
         AxisSignal::TorqueCmd => s.servo.force_cmd_n / fpt,
@@ -988,7 +1137,7 @@ fn recorded_value(sig: AxisSignal, a: &AxisRt) -> f64 {
         AxisSignal::Gap => o.gap_m,
         AxisSignal::Thermal => o.thermal_m,
         AxisSignal::LeadErr => o.lead_err_m,
-        AxisSignal::Sag => a.sample_pos_m - o.pos_m,
+        AxisSignal::Sag => sample_pos_m - o.pos_m,
         // Not recorded per axis by the machine (compensations add theirs).
         _ => f64::NAN,
     }

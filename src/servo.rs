@@ -120,6 +120,17 @@ pub struct ServoOutput {
     pub vel_fb_mps: f64,
 }
 
+impl ServoOutput {
+    /// `*dst = *self`, one field at a time (see [`crate::plant::PlantOut::store`]).
+    #[inline(always)]
+    pub fn store(&self, dst: &mut ServoOutput) {
+        dst.force_cmd_n = self.force_cmd_n;
+        dst.force_n = self.force_n;
+        dst.ferr_m = self.ferr_m;
+        dst.vel_fb_mps = self.vel_fb_mps;
+    }
+}
+
 /// One axis's amplifier.
 #[derive(Debug, Clone)]
 pub struct Servo {

@@ -456,7 +456,8 @@ fn the_plain_step_computes_what_the_full_step_computes() {
         "default.ron's X axis should be plain"
     );
     let (mut a_rows, mut b_rows) = (Vec::new(), Vec::new());
-    plain.run(&inputs, |_, s| {
+    plain.run(&inputs, |_, l| {
+        let s = l.sample();
         a_rows.push([
             s.plant.pos_m,
             s.plant.motor_enc_m,
@@ -464,7 +465,8 @@ fn the_plain_step_computes_what_the_full_step_computes() {
             s.plant.friction_n,
         ])
     });
-    full.run(&inputs, |_, s| {
+    full.run(&inputs, |_, l| {
+        let s = l.sample();
         b_rows.push([
             s.plant.pos_m,
             s.plant.motor_enc_m,
@@ -509,5 +511,51 @@ fn a_staged_run_records_the_trace_that_single_steps_record() {
             .zip(&y.data)
             .all(|(u, v)| u.to_bits() == v.to_bits());
         assert!(same, "column {} differs", x.name);
+    }
+}
+
+/// `Machine::run` takes whole T2 periods axis by axis (`Machine::run_block`) where it may,
+/// and single T3 steps where it may not (crossbeam, servo-stage compensations). On every
+/// shipped preset, and with every third and seventh row recorded, a program-driven run
+/// ends at the same step and records the same trace, bit for bit, as `Machine::step` taken
+/// one T3 at a time with the same stopping rule.
+#[test]
+fn a_run_in_t2_blocks_ends_and_records_as_single_steps_do() {
+    let mut cases = Vec::new();
+    for (name, _) in axisbench::preset::EMBEDDED
+        .iter()
+        .filter(|(n, _)| n.ends_with(".ron"))
+    {
+        let lp = axisbench::preset::load_embedded(name).expect("preset");
+        cases.push((name.to_string(), lp.clone()));
+        if *name == "default.ron" || *name == "xy_circle.ron" {
+            for every in [3, 7] {
+                let mut l = lp.clone();
+                l.preset.scenario.trace_every = every;
+                cases.push((format!("{name} every {every}"), l));
+            }
+        }
+    }
+    for (what, lp) in cases {
+        let max_s = 1.5003;
+        let mut a = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+        let mut b = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+        a.run(max_s).expect("run");
+        let max_k = (max_s / b.t3_s).ceil() as u64;
+        while !b.done() && b.k < max_k {
+            b.step();
+        }
+        assert_eq!(a.k, b.k, "{what}: the run ended at another step");
+        assert_eq!(a.trace.signals.len(), b.trace.signals.len(), "{what}");
+        assert!(a.trace.len() > 10, "{what}: {} rows", a.trace.len());
+        for (x, y) in a.trace.signals.iter().zip(&b.trace.signals) {
+            assert_eq!(x.data.len(), y.data.len(), "{what}: {}", x.name);
+            let same = x
+                .data
+                .iter()
+                .zip(&y.data)
+                .all(|(u, v)| u.to_bits() == v.to_bits());
+            assert!(same, "{what}: column {} differs", x.name);
+        }
     }
 }
