@@ -165,7 +165,8 @@ struct Recorder {
     cap: usize,
     /// Columns of the trace (row length).
     ncols: usize,
-    /// Staged rows, row-major, [`STAGE_ROWS`] × `ncols`.
+    /// Staged rows, column-major: column `c` is `stage[c * cap..][..cap]`, so that a flush
+    /// appends each column with one copy.
     stage: Vec<f64>,
     /// Rows in `stage` not yet in the trace.
     staged: usize,
@@ -704,7 +705,7 @@ impl Machine {
             match &mut self.rec {
                 None => a.axis_loop.run(&inputs[..len], |_, _| {}),
                 Some(rec) => {
-                    let (every, n, first) = (u64::from(rec.every), rec.ncols, rec.staged);
+                    let (every, cap, first) = (u64::from(rec.every), rec.cap, rec.staged);
                     let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);
                     let stage = &mut rec.stage;
                     let mut r = first;
@@ -716,9 +717,10 @@ impl Machine {
                         let fpt = l.force_per_torque();
                         let vals = AxisSignal::RECORDED
                             .map(|sig| recorded_value(sig, s, s.plant.pos_m + sag, fpt));
-                        let row = &mut stage[r * n..(r + 1) * n];
-                        row[base..base + vals.len()].copy_from_slice(&vals);
-                        row[temp_col] = l.plant().thermal().temp_c;
+                        for (c, v) in vals.into_iter().enumerate() {
+                            stage[(base + c) * cap + r] = v;
+                        }
+                        stage[temp_col * cap + r] = l.plant().thermal().temp_c;
                         r += 1;
                     });
                 }
@@ -745,7 +747,7 @@ impl Machine {
             .axes
             .first()
             .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
-        let n = rec.ncols;
+        let cap = rec.cap;
         for k in (k0..k0 + len as u64).filter(|k| k.is_multiple_of(every)) {
             // Read for every recorded row, as `record` does: a sparse value (a thermal
             // measurement) shows on the first recorded row after it and is then spent.
@@ -754,14 +756,14 @@ impl Machine {
                 c.values(&mut rec.comp_vals[at..at + cn]);
                 at += cn;
             }
-            let row = &mut rec.stage[rec.staged * n..(rec.staged + 1) * n];
-            row[0] = k as f64 * self.t3_s;
-            row[rec.ambient_col] = ambient;
+            let (r, stage) = (rec.staged, &mut rec.stage);
+            stage[r] = k as f64 * self.t3_s;
+            stage[rec.ambient_col * cap + r] = ambient;
             for (ch, &c) in self.channels.iter().zip(&rec.mode_cols) {
-                row[c] = ch.mode.as_f64();
+                stage[c * cap + r] = ch.mode.as_f64();
             }
             for (&col, &v) in rec.comp_cols.iter().zip(&rec.comp_vals) {
-                row[col] = v;
+                stage[col * cap + r] = v;
             }
             rec.staged += 1;
         }
@@ -978,28 +980,29 @@ impl Machine {
         if !(self.k - 1).is_multiple_of(rec.every as u64) {
             return;
         }
-        let n = rec.ncols;
-        let at = rec.staged * n;
-        let row = &mut rec.stage[at..at + n];
+        let (cap, r) = (rec.cap, rec.staged);
+        let stage = &mut rec.stage;
         // The row is the instant t_k at the start of the step just taken.
-        row[0] = (self.k - 1) as f64 * self.t3_s;
+        stage[r] = (self.k - 1) as f64 * self.t3_s;
         for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
             // `map` over the constant list unrolls, so each column gets its expression
             // without a jump per signal.
             let l = &a.axis_loop;
             let vals = AxisSignal::RECORDED
                 .map(|sig| recorded_value(sig, l.sample(), a.sample_pos_m, l.force_per_torque()));
-            row[base..base + vals.len()].copy_from_slice(&vals);
+            for (c, v) in vals.into_iter().enumerate() {
+                stage[(base + c) * cap + r] = v;
+            }
         }
         for (a, &c) in self.axes.iter().zip(&rec.temp_cols) {
-            row[c] = a.axis_loop.plant().thermal().temp_c;
+            stage[c * cap + r] = a.axis_loop.plant().thermal().temp_c;
         }
-        row[rec.ambient_col] = self
+        stage[rec.ambient_col * cap + r] = self
             .axes
             .first()
             .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
         for (ch, &c) in self.channels.iter().zip(&rec.mode_cols) {
-            row[c] = ch.mode.as_f64();
+            stage[c * cap + r] = ch.mode.as_f64();
         }
         if !rec.comp_cols.is_empty() {
             let mut at = 0;
@@ -1019,7 +1022,7 @@ impl Machine {
                 at += n;
             }
             for (&col, &v) in rec.comp_cols.iter().zip(&rec.comp_vals) {
-                row[col] = v;
+                stage[col * cap + r] = v;
             }
         }
         rec.staged += 1;
@@ -1033,10 +1036,10 @@ impl Machine {
     /// writes per row went to 21 places in memory, and recording cost three times the model).
     fn flush_rows(&mut self) {
         let Some(rec) = &mut self.rec else { return };
-        let (n, rows) = (rec.ncols, rec.staged);
+        let (n, cap, rows) = (rec.ncols, rec.cap, rec.staged);
         for (c, sig) in self.trace.signals.iter_mut().enumerate().take(n) {
-            let stage = &rec.stage;
-            sig.data.extend((0..rows).map(|r| stage[r * n + c]));
+            sig.data
+                .extend_from_slice(&rec.stage[c * cap..c * cap + rows]);
         }
         rec.staged = 0;
     }

@@ -44,7 +44,7 @@ impl MovingAverage {
         }
         self.sum += x - self.buf[self.idx];
         self.buf[self.idx] = x;
-        self.idx = (self.idx + 1) % n;
+        self.idx = if self.idx + 1 == n { 0 } else { self.idx + 1 };
         if x == self.last_in {
             self.same = (self.same + 1).min(n);
         } else {
@@ -148,7 +148,6 @@ pub struct Channel {
     ended: bool,
     /// Program line (1-based) of the block being executed; 0 before the first.
     pub line: usize,
-    scratch: Vec<f64>,
 }
 
 impl Channel {
@@ -186,7 +185,6 @@ impl Channel {
             t1_phase: 0,
             ended: false,
             line: 0,
-            scratch: start_m.to_vec(),
         };
         ch.reset_filters();
         ch
@@ -295,8 +293,7 @@ impl Channel {
             if let Some(seg) = &mut self.seg {
                 seg.k += 1;
                 let s = seg.k as f64 / seg.n_ticks as f64;
-                program::point_on(&seg.path, &seg.start, &seg.end, s, &mut self.scratch);
-                self.prog_pos.clone_from(&self.scratch);
+                program::point_on(&seg.path, &seg.start, &seg.end, s, &mut self.prog_pos);
                 if seg.k >= seg.n_ticks {
                     self.prog_pos.clone_from(&seg.end);
                     self.seg = None;
