@@ -169,6 +169,7 @@ def kernel(raw, cmd, n23, c, record, out):
     share = c[29]; motion = c[30]; inv_cap = c[31]; loss = c[32]; amb = c[33]
     alpha_t = c[34]; ref_c = c[35]; fixed = c[36]; temp = c[37]; x0 = c[38]; fpt = c[39]
     h = c[40]
+    hh = 0.5 * h                                   # plant::trapezoid
     # plant (AxisPlant::new/place): at rest on the + flank (no gravity), encoder reading x0
     contact = 1
     x_t = x0 - contact * b2
@@ -217,7 +218,7 @@ def kernel(raw, cmd, n23, c, record, out):
             v, fr = friction_step(a_hm, a_mh, a_vi, a_kin, coul, visc, v_t, force)
             f_contact = t_mh * (v - v_t) - 0.0 - fr
             if f_contact * contact >= 0.0:
-                x_m += h * 0.5 * (v_m + v)
+                x_m = (x_m + hh * v_m) + hh * v
                 v_t = v; v_m = v
                 x_t = x_m - contact * b2
                 done = True
@@ -226,9 +227,9 @@ def kernel(raw, cmd, n23, c, record, out):
         if not done:
             v_m0 = v_m
             v_m += mot_hm * force
-            x_m += h * 0.5 * (v_m0 + v_m)
+            x_m = (x_m + hh * v_m0) + hh * v_m
             v, fr = friction_step(t_hm, t_mh, t_vi, t_kin, coul, visc, v_t, 0.0)
-            x_t += h * 0.5 * (v_t + v)
+            x_t = (x_t + hh * v_t) + hh * v
             v_t = v
             gap = x_m - x_t
             side = 1 if gap >= b2 else (-1 if gap <= -b2 else 0)
