@@ -198,17 +198,27 @@ impl Applied {
     pub fn apply(&self, c: &mut Cand) {
         match self {
             Applied::Params(e, th) => e.apply(th, &mut c.model),
-            Applied::LeadTable(t) => {
-                let l = &mut c.model.axis.lead_error;
-                l.enabled = true;
-                l.table.clone_from(t);
-            }
+            Applied::LeadTable(t) => set_lead_table(c, t),
             Applied::Disturbance(d, v) => {
                 c.model.disturbance.push(d.clone());
                 c.dist_val.extend(v.iter().cloned());
             }
         }
     }
+}
+
+/// Gives `c` the lead-error table `t` (position mm, error µm). A lead error the nominal did
+/// not have starts from nothing: the preset's disabled cyclic and cumulative terms (typical
+/// values a user never switched on) would otherwise come on with the table and add an error
+/// the record does not have.
+pub fn set_lead_table(c: &mut Cand, t: &[(f64, f64)]) {
+    let l = &mut c.model.axis.lead_error;
+    if !l.enabled {
+        l.amplitude_um = 0.0;
+        l.cumulative_um_per_m = 0.0;
+    }
+    l.enabled = true;
+    l.table = t.to_vec();
 }
 
 /// What every candidate fit needs.
