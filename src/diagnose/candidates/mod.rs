@@ -417,7 +417,13 @@ fn starts(effect: Effect, hint: &[f64]) -> Vec<Vec<f64>> {
     let grid = match effect {
         Effect::StribeckFriction => vary(1, &[0.5, 2.0, 8.0]),
         Effect::StrokeFriction => vary(1, &[5.0, 20.0]),
-        Effect::Compliance => vary(0, &[10.0, 50.0, 250.0]),
+        // Damped well (about 0.1–0.2 of critical on a 100 kg axis): a lightly damped spring
+        // makes the replayed loop ring up and diverge before the solver has a gradient.
+        Effect::Compliance => vec![
+            vec![2.0, 1500.0, 0.3],
+            vec![10.0, 4000.0, 0.3],
+            vec![50.0, 10000.0, 0.3],
+        ],
         Effect::ThermalGrowth => vary(1, &[60.0, 600.0]),
         Effect::Backlash => vary(0, &[3.0, 10.0, 30.0]),
         Effect::BacklashAsymmetry => vec![vec![5.0, -30.0], vec![5.0, 30.0], vec![20.0, 30.0]],
