@@ -82,8 +82,12 @@ pub fn run(
             .filter(|(f, _)| !proven_only(f))
             .map(|(f, _)| f.applied.clone())
             .collect();
+        // The calibration ratios of the base: those of the last effect in it (a deferred
+        // effect's fit may have moved them, but its model is not the base).
         let ratios = selected
-            .last()
+            .iter()
+            .rev()
+            .find(|(f, _)| !proven_only(f))
             .map_or(ratios0.clone(), |(f, _)| f.ratios.clone());
         let ctx = Context {
             eng,
