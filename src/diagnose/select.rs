@@ -58,9 +58,16 @@ pub fn run(
     let mut selected: Vec<(Fitted, Scores)> = Vec::new();
     let mut base = calibrated.clone();
     let mut base_eval = cal_eval.clone();
+    // Effects proven by their signature alone (see [`proven_only`]) stay out of the base the
+    // next rounds fit on, and are added at the end.
+    let mut deferred: Vec<Applied> = Vec::new();
     if let Some((f, s)) = ranking.first().filter(|(_, s)| s.significant) {
-        base = f.cand.clone();
-        base_eval = f.eval.clone();
+        if proven_only(f) {
+            deferred.push(f.applied.clone());
+        } else {
+            base = f.cand.clone();
+            base_eval = f.eval.clone();
+        }
         selected.push((f.clone(), *s));
     }
     while !selected.is_empty() && selected.len() < max_effects {
@@ -70,9 +77,17 @@ pub fn run(
             .filter(|e| !selected.iter().any(|(f, _)| f.effect == *e))
             .collect();
         let sig = Signals::new(eng, &base_eval);
-        let applied: Vec<Applied> = selected.iter().map(|(f, _)| f.applied.clone()).collect();
+        let applied: Vec<Applied> = selected
+            .iter()
+            .filter(|(f, _)| !proven_only(f))
+            .map(|(f, _)| f.applied.clone())
+            .collect();
+        // The calibration ratios of the base: those of the last effect in it (a deferred
+        // effect's fit may have moved them, but its model is not the base).
         let ratios = selected
-            .last()
+            .iter()
+            .rev()
+            .find(|(f, _)| !proven_only(f))
             .map_or(ratios0.clone(), |(f, _)| f.ratios.clone());
         let ctx = Context {
             eng,
@@ -88,9 +103,19 @@ pub fn run(
         let Some((f, s)) = round.into_iter().next().filter(|(_, s)| s.significant) else {
             break;
         };
-        base = f.cand.clone();
-        base_eval = f.eval.clone();
+        if proven_only(&f) {
+            deferred.push(f.applied.clone());
+        } else {
+            base = f.cand.clone();
+            base_eval = f.eval.clone();
+        }
         selected.push((f, s));
+    }
+    if !deferred.is_empty() {
+        for a in &deferred {
+            a.apply(&mut base);
+        }
+        base_eval = eng.evaluate(&base)?;
     }
     let j = joint_refit(eng, cal, nominal, &selected, base, base_eval)?;
     Ok(Outcome {
@@ -101,6 +126,16 @@ pub fn run(
         final_ratios: j.ratios,
         final_params: j.params,
     })
+}
+
+/// Whether `f` was found by its signature alone, not by a shrink: a quantization grid
+/// (rounding cannot be predicted sample by sample) or a hunting drive's steady tone (a limit
+/// cycle's phase cannot either). Modelled, such an effect adds its own unpredictable part to
+/// the replay, so a second effect fitted on top of it is scored against a residual that the
+/// first made larger: the later rounds fit without it, and it is added at the end.
+fn proven_only(f: &Fitted) -> bool {
+    f.effect == Effect::Quantization
+        || (f.evidence.pass && f.evidence.figures.contains_key("hunting_share"))
 }
 
 /// The selected effects' parameters and the calibration ratios, fitted together; kept only

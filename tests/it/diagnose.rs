@@ -462,3 +462,39 @@ fn bad_records_get_clear_errors() {
     let e = bad(&(String::from("t[s],x.cmd[mm],x.pos[mm]\n") + &rows(20, empty)));
     assert!(e.contains("x.pos") && e.contains("row 6"), "{e}");
 }
+
+/// One independent case with a single hidden effect, diagnosed.
+fn diagnose_indep(effect: &str, formula: &str, seed: u64, scale: bool) -> Report {
+    use axisbench::indep::{self, CaseSpec, EffectPick, PosSensor};
+    let pick = EffectPick::new(effect, Some(formula)).expect("known effect");
+    let mut s = CaseSpec::new("case", seed, vec![pick]);
+    s.duration_s = Some(24.0);
+    if scale {
+        s.pos_sensor = PosSensor::LinearScale;
+    }
+    let c = indep::generate(&s).expect("case generates");
+    let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
+    let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
+    run(&c.preset, &rec, None, &Options::default())
+}
+
+#[test]
+fn a_lead_error_that_is_not_periodic_is_found_as_a_table_along_the_travel() {
+    // Cases 49 and 51 of the independent seed 1: smoothed random knots every 9–10 mm, a
+    // few µm, on the scale. The fitting part and the held-out part cover different travel.
+    for seed in [1_000_052, 1_000_054] {
+        let r = diagnose_indep("lead_error", "table", seed, true);
+        assert_eq!(r.verdict, "lead_error", "seed {seed}: {:#?}", r.ranking);
+        let e = &r.ranking[0];
+        assert!(e.params.contains_key("table_points"), "{:?}", e.params);
+        assert!(r.shrink > 0.05, "seed {seed}: shrink {}", r.shrink);
+    }
+}
+
+#[test]
+fn a_soft_payload_is_found_as_compliance() {
+    // Case 41 of the independent seed 1: a payload on a 53 Hz hardening spring.
+    let r = diagnose_indep("compliance", "hardening", 1_000_044, false);
+    assert_eq!(r.verdict, "compliance", "{:#?}", r.ranking);
+    assert!(r.shrink > 0.2, "shrink {}", r.shrink);
+}

@@ -149,7 +149,8 @@ fn resonance(ctx: &Context) -> Evidence {
             let share = 0.3;
             let m_red = share * (1.0 - share) * m;
             let k_n_per_um = w * w * m_red * 1e-6;
-            let c = 2.0 * r.damping_ratio.max(0.02) * w * m_red;
+            // At least 0.1 of critical to start from: see `starts`.
+            let c = 2.0 * r.damping_ratio.max(0.1) * w * m_red;
             Evidence {
                 pass: true,
                 text: format!(
@@ -285,6 +286,106 @@ fn fit_quantization(ctx: &Context, ev: Evidence) -> Result<Option<Fitted>, Diagn
     )))
 }
 
+/// Knot spacing of a local lead-error table, per pitch found by the spectrum, and its
+/// bounds in mm: fine enough for a smooth error table (knots every 5–25 mm, smoothed), coarse
+/// enough that each knot sees many passes.
+const LOCAL_KNOTS_PER_PITCH: f64 = 8.0;
+const LOCAL_SPACING_MM: (f64, f64) = (2.0, 8.0);
+
+/// Largest number of knots of a local table (bounds the normal equations).
+const LOCAL_MAX_KNOTS: usize = 400;
+
+/// Weight of the second-difference penalty of a local table, per unit of the mean number of
+/// samples per knot: keeps knots that few samples see close to their neighbours.
+const LOCAL_SMOOTHING: f64 = 0.05;
+
+/// A lead error as a table of knots along the travel the fitting part covered, fitted by
+/// least squares to the position residual where the command does not accelerate (at rest
+/// and at constant feed the residual of a scale is the lead error itself; under acceleration
+/// the dynamics add to it), and tapered to zero one knot beyond. A lead error need not be
+/// periodic (a pitch table of a ground screw is not): the harmonics extrapolate a shape the
+/// record never showed, the table claims nothing outside the travel it saw.
+/// Returns (position mm, error µm) rows, or None when too few samples are at rest.
+fn local_lead_table(ctx: &Context, spacing_m: f64) -> Option<Vec<(f64, f64)>> {
+    let sig = ctx.sig;
+    let acc_max = sig.cmd_acc_mps2.iter().fold(0.0_f64, |m, a| m.max(a.abs()));
+    let quiet = |k: usize| sig.cmd_acc_mps2[k].abs() <= 0.01 * acc_max;
+    let rows: Vec<usize> = (0..sig.pos_m.len().min(sig.r_pos.len()))
+        .filter(|&k| quiet(k))
+        .collect();
+    let (lo, hi) = rows
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &k| {
+            (a.min(sig.pos_m[k]), b.max(sig.pos_m[k]))
+        });
+    // Written so that a NaN fails too.
+    let spans = hi > lo && spacing_m > 0.0;
+    if rows.len() < 100 || !spans {
+        return None;
+    }
+    let m = (((hi - lo) / spacing_m).ceil() as usize).clamp(1, LOCAL_MAX_KNOTS - 1) + 1;
+    let step = (hi - lo) / (m - 1) as f64;
+    let mut ata = nalgebra::DMatrix::<f64>::zeros(m, m);
+    let mut atb = nalgebra::DVector::<f64>::zeros(m);
+    for &k in &rows {
+        let u = ((sig.pos_m[k] - lo) / step).clamp(0.0, (m - 1) as f64);
+        let i = (u.floor() as usize).min(m - 2);
+        let f = u - i as f64;
+        let (w0, w1) = (1.0 - f, f);
+        ata[(i, i)] += w0 * w0;
+        ata[(i, i + 1)] += w0 * w1;
+        ata[(i + 1, i)] += w0 * w1;
+        ata[(i + 1, i + 1)] += w1 * w1;
+        atb[i] += w0 * sig.r_pos[k];
+        atb[i + 1] += w1 * sig.r_pos[k];
+    }
+    let lambda = LOCAL_SMOOTHING * rows.len() as f64 / m as f64;
+    for i in 1..m.saturating_sub(1) {
+        let d = [(i - 1, 1.0), (i, -2.0), (i + 1, 1.0)];
+        for (a, wa) in d {
+            for (b, wb) in d {
+                ata[(a, b)] += lambda * wa * wb;
+            }
+        }
+    }
+    for i in 0..m {
+        ata[(i, i)] += 1e-9 * lambda.max(1.0);
+    }
+    let x = ata.cholesky()?.solve(&atb);
+    let mut table = vec![(m_to_mm(lo - step), 0.0)];
+    table.extend((0..m).map(|i| (m_to_mm(lo + i as f64 * step), m_to_um(x[i]))));
+    table.push((m_to_mm(hi + step), 0.0));
+    table
+        .iter()
+        .all(|(a, b)| a.is_finite() && b.is_finite())
+        .then_some(table)
+}
+
+/// A local lead-error table fitted on the base: the model with it, its residuals, the table.
+type LocalLead = (Cand, Eval, Vec<(f64, f64)>);
+
+/// The lead error as a local table (see [`local_lead_table`]) when it explains clearly more
+/// of the fitting part than the harmonics did (`harm_gain`: their drop of the fitting
+/// criterion); judged on the fitting part only, so the held-out score stays unbiased.
+fn fit_lead_local(
+    ctx: &Context,
+    ev: &Evidence,
+    harm_gain: f64,
+) -> Result<Option<LocalLead>, DiagnoseError> {
+    let pitch_mm = ev.hint.first().copied().unwrap_or(0.0);
+    let spacing_mm =
+        (pitch_mm / LOCAL_KNOTS_PER_PITCH).clamp(LOCAL_SPACING_MM.0, LOCAL_SPACING_MM.1);
+    let Some(table) = local_lead_table(ctx, mm_to_m(spacing_mm)) else {
+        return Ok(None);
+    };
+    let mut cand = ctx.base.clone();
+    super::set_lead_table(&mut cand, &table);
+    let eval = ctx.eng.evaluate(&cand)?;
+    let fit_j = |e: &Eval| ctx.eng.j(&e.fit_pos, e.fit_force.as_deref());
+    let gain = fit_j(ctx.base_eval) - fit_j(&eval);
+    Ok((gain > 1.5 * harm_gain.max(0.0)).then_some((cand, eval, table)))
+}
+
 /// The lead error as a table of the fitted harmonics (pitch from the spectrum, coefficients
 /// by least squares on the position residual), every 1/24 of a pitch over the travel.
 fn fit_lead(ctx: &Context, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError> {
@@ -306,10 +407,8 @@ fn fit_lead(ctx: &Context, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError
     let step = mm_to_m(pitch_mm) / 24.0;
     let n = (((hi - lo) / step).ceil() as usize + 3).min(9_000);
     let mut cand = ctx.base.clone();
-    let l = &mut cand.model.axis.lead_error;
-    l.enabled = true;
     let x0 = lo - step;
-    l.table = (0..n)
+    let harmonics: Vec<(f64, f64)> = (0..n)
         .map(|i| {
             let x = x0 + i as f64 * step;
             let ph = std::f64::consts::TAU * x / mm_to_m(pitch_mm);
@@ -325,8 +424,35 @@ fn fit_lead(ctx: &Context, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError
             (m_to_mm(x), m_to_um(e))
         })
         .collect();
-    let table = cand.model.axis.lead_error.table.clone();
+    super::set_lead_table(&mut cand, &harmonics);
+    let table = harmonics;
     let eval = ctx.eng.evaluate(&cand)?;
+    let fit_j = |e: &Eval| ctx.eng.j(&e.fit_pos, e.fit_force.as_deref());
+    let harm_gain = fit_j(ctx.base_eval) - fit_j(&eval);
+    // A screw that grows with heat also leaves an error along the travel, which a free
+    // table would take for a pitch error; where the residual drifts in time, only the
+    // harmonics (a shape the growth does not have) may claim it.
+    if ev.pass
+        && !drift(ctx).pass
+        && let Some((cand, eval, table)) = fit_lead_local(ctx, &ev, harm_gain)?
+    {
+        let theta = vec![pitch_mm, table.len() as f64];
+        let mut f = fitted(
+            ctx,
+            Made {
+                effect: Effect::LeadError,
+                cand,
+                eval,
+                keys: vec!["pitch_mm".to_owned(), "table_points".to_owned()],
+                theta,
+                applied: Applied::LeadTable(table),
+            },
+            ev,
+        );
+        f.note =
+            "a table along the travel the record covered (the harmonics explained less)".into();
+        return Ok(Some(f));
+    }
     let mut keys = vec!["pitch_mm".to_owned(), "cumulative_um_per_m".to_owned()];
     let mut theta = vec![pitch_mm, slope * 1e6];
     for (k, (s, c)) in coef.iter().enumerate() {
