@@ -709,20 +709,24 @@ impl Machine {
                     let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);
                     let stage = &mut rec.stage;
                     let mut r = first;
-                    a.axis_loop.run(&inputs[..len], |j, l| {
-                        if !(k0 + j as u64).is_multiple_of(every) {
-                            return;
-                        }
-                        let s = l.sample();
-                        let fpt = l.force_per_torque();
-                        let vals = AxisSignal::RECORDED
-                            .map(|sig| recorded_value(sig, s, s.plant.pos_m + sag, fpt));
-                        for (c, v) in vals.into_iter().enumerate() {
-                            stage[(base + c) * cap + r] = v;
-                        }
-                        stage[temp_col * cap + r] = l.plant().thermal().temp_c;
-                        r += 1;
-                    });
+                    a.axis_loop.run(
+                        &inputs[..len],
+                        #[inline(always)]
+                        |j, l| {
+                            if !(k0 + j as u64).is_multiple_of(every) {
+                                return;
+                            }
+                            let s = l.sample();
+                            let fpt = l.force_per_torque();
+                            let vals = AxisSignal::RECORDED
+                                .map(|sig| recorded_value(sig, s, s.plant.pos_m + sag, fpt));
+                            for (c, v) in vals.into_iter().enumerate() {
+                                stage[(base + c) * cap + r] = v;
+                            }
+                            stage[temp_col * cap + r] = l.plant().thermal().temp_c;
+                            r += 1;
+                        },
+                    );
                 }
             }
             a.cmd_nc_m = a.buf_comp[len - 1];
