@@ -378,15 +378,24 @@ impl PlantOut {
     /// buffer, and in the T3 step that stall cost ~25 % of the time.
     #[inline(always)]
     pub fn store(&self, dst: &mut PlantOut) {
-        dst.motor_pos_m = self.motor_pos_m;
-        dst.motor_enc_m = self.motor_enc_m;
-        dst.pos_m = self.pos_m;
-        dst.scale_m = self.scale_m;
-        dst.vel_mps = self.vel_mps;
-        dst.friction_n = self.friction_n;
-        dst.gap_m = self.gap_m;
-        dst.thermal_m = self.thermal_m;
-        dst.lead_err_m = self.lead_err_m;
+        let fields = [
+            (&mut dst.motor_pos_m, self.motor_pos_m),
+            (&mut dst.motor_enc_m, self.motor_enc_m),
+            (&mut dst.pos_m, self.pos_m),
+            (&mut dst.scale_m, self.scale_m),
+            (&mut dst.vel_mps, self.vel_mps),
+            (&mut dst.friction_n, self.friction_n),
+            (&mut dst.gap_m, self.gap_m),
+            (&mut dst.thermal_m, self.thermal_m),
+            (&mut dst.lead_err_m, self.lead_err_m),
+        ];
+        for (d, v) in fields {
+            // SAFETY: `d` comes from a `&mut` borrow, so it is valid, aligned and exclusive.
+            // The write is volatile only so that the compiler keeps it one 8-byte store:
+            // without it, it merged four of these copies back into one wide load and store,
+            // the stall this function exists to avoid (+3 % on the T3 step when removed).
+            unsafe { std::ptr::write_volatile(d, v) };
+        }
     }
 }
 

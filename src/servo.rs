@@ -224,15 +224,15 @@ impl Servo {
         };
         let integ_new = st.integ_n + g.integ_gain_n_per_mps * ev;
         let lim = g.force_limit_n;
-        let clamped = raw.clamp(-lim, lim);
-        // Conditional integration: hold the integrator while the output is saturated in the
-        // direction the integrator is pushing, so it does not wind up.
-        if clamped == raw
-            || (raw > lim && integ_new < st.integ_n)
-            || (raw < -lim && integ_new > st.integ_n)
-        {
+        // Inside the limit (nearly always) the command goes on as it is, behind a branch the
+        // CPU predicts, so the limit is not on the loop's critical path. `saturate` gives the
+        // same value for any command; it only runs when the limit bites.
+        let clamped = if raw.abs() <= lim {
             st.integ_n = integ_new;
-        }
+            raw
+        } else {
+            saturate(raw, lim, integ_new, &mut st.integ_n)
+        };
         st.force_n = g.cur_keep * st.force_n + g.cur_alpha * clamped;
         self.out = ServoOutput {
             force_cmd_n: clamped,
@@ -253,6 +253,21 @@ impl Servo {
     pub fn kv_n_s_per_m(&self) -> f64 {
         self.g.kv_n_s_per_m
     }
+}
+
+/// The force limit and the conditional integration: the integrator is held while the output
+/// is saturated in the direction the integrator is pushing, so it does not wind up.
+#[cold]
+#[inline(never)]
+fn saturate(raw_n: f64, lim_n: f64, integ_new_n: f64, integ_n: &mut f64) -> f64 {
+    let clamped = raw_n.clamp(-lim_n, lim_n);
+    if clamped == raw_n
+        || (raw_n > lim_n && integ_new_n < *integ_n)
+        || (raw_n < -lim_n && integ_new_n > *integ_n)
+    {
+        *integ_n = integ_new_n;
+    }
+    clamped
 }
 
 fn current_alpha(lag_s: f64, t3_s: f64) -> f64 {
