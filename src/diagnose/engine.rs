@@ -191,6 +191,21 @@ impl<'a> Engine<'a> {
         Ok((e, ev))
     }
 
+    /// Normalises position and force by the fitting residual of `ev` (each round of the
+    /// selection weighs the two by what is left of each on its base), keeping the anomaly
+    /// mask; returns the normalisation it replaced.
+    pub fn set_norm(&mut self, ev: &Eval) -> (f64, f64) {
+        let old = (self.sig_pos, self.sig_force);
+        self.sig_pos = rms(&ev.fit_pos).max(1e-12);
+        self.sig_force = ev.fit_force.as_deref().map_or(1.0, rms).max(1e-9);
+        old
+    }
+
+    /// Puts back a normalisation [`Engine::set_norm`] returned.
+    pub fn restore_norm(&mut self, norm: (f64, f64)) {
+        (self.sig_pos, self.sig_force) = norm;
+    }
+
     /// Takes the normalisation (and the anomaly mask) from the residual `ev`.
     pub fn set_scale(&mut self, ev: &Eval) {
         self.sig_pos = rms(&ev.fit_pos).max(1e-12);

@@ -410,7 +410,7 @@ pub fn diagnose(
     cal.j_nominal = j_nominal;
     cal.j_calibrated = eng0.j(&cal_eval.hold_pos, cal_eval.hold_force.as_deref());
     let outcome = select::run(
-        &eng,
+        &mut eng,
         &cal,
         &nominal,
         &calibrated,

@@ -6,7 +6,7 @@
 
 use super::DiagnoseError;
 use super::calibrate::{CalParam, Calibration};
-use super::candidates::{self, Applied, Context, Fitted, MIN_SHRINK, Signals};
+use super::candidates::{self, Applied, Context, Fitted, MIN_SHRINK, Selected, Signals};
 use super::effects::Effect;
 use super::engine::{Cand, Engine, Eval, Scores};
 use super::lm::{self, Param};
@@ -30,7 +30,7 @@ pub struct Outcome {
 
 /// Runs the selection from the calibrated model `calibrated` (residual `cal_eval`).
 pub fn run(
-    eng: &Engine,
+    eng: &mut Engine,
     cal: &Calibration,
     nominal: &Cand,
     calibrated: &Cand,
@@ -55,6 +55,7 @@ pub fn run(
         sig: &sig,
     };
     let ranking = candidates::fit_all(&ctx, effects)?.ranked;
+    trace_round(0, &ranking);
     let mut selected: Vec<(Fitted, Scores)> = Vec::new();
     let mut base = calibrated.clone();
     let mut base_eval = cal_eval.clone();
@@ -70,17 +71,26 @@ pub fn run(
         }
         selected.push((f.clone(), *s));
     }
+    let norm0 = (eng.sig_pos, eng.sig_force);
     while !selected.is_empty() && selected.len() < max_effects {
+        // Each round weighs position and force by what is left of each on its base: an
+        // effect that shows only in the position (a lead error, thermal growth) is not
+        // drowned by a force residual the first effect left larger.
+        eng.set_norm(&base_eval);
+        let eng: &Engine = eng;
         let rest: Vec<Effect> = effects
             .iter()
             .copied()
             .filter(|e| !selected.iter().any(|(f, _)| f.effect == *e))
             .collect();
         let sig = Signals::new(eng, &base_eval);
-        let applied: Vec<Applied> = selected
+        let applied: Vec<Selected> = selected
             .iter()
             .filter(|(f, _)| !proven_only(f))
-            .map(|(f, _)| f.applied.clone())
+            .map(|(f, _)| Selected {
+                applied: f.applied.clone(),
+                refit: f.refit,
+            })
             .collect();
         // The calibration ratios of the base: those of the last effect in it (a deferred
         // effect's fit may have moved them, but its model is not the base).
@@ -100,6 +110,7 @@ pub fn run(
             sig: &sig,
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
+        trace_round(selected.len(), &round);
         let Some((f, s)) = round.into_iter().next().filter(|(_, s)| s.significant) else {
             break;
         };
@@ -108,9 +119,12 @@ pub fn run(
         } else {
             base = f.cand.clone();
             base_eval = f.eval.clone();
+            take_refitted(&mut selected, &f.sel_theta);
         }
         selected.push((f, s));
     }
+    eng.restore_norm(norm0);
+    let eng: &Engine = eng;
     if !deferred.is_empty() {
         for a in &deferred {
             a.apply(&mut base);
@@ -126,6 +140,27 @@ pub fn run(
         final_ratios: j.ratios,
         final_params: j.params,
     })
+}
+
+/// Gives the selected effects that were fitted again alongside the newest one their new
+/// parameters (`sel_theta`, in the order [`candidates::Context::selected_theta`] reads them:
+/// the selected effects in the base, re-fitted ones only).
+fn take_refitted(selected: &mut [(Fitted, Scores)], sel_theta: &[f64]) {
+    if sel_theta.is_empty() {
+        return;
+    }
+    let mut at = 0;
+    for (g, _) in selected.iter_mut().filter(|(g, _)| !proven_only(g)) {
+        if let (Applied::Params(e, th), true) = (&g.applied, g.refit) {
+            let n = th.len();
+            let Some(new) = sel_theta.get(at..at + n) else {
+                return;
+            };
+            g.theta = new.to_vec();
+            g.applied = Applied::Params(*e, new.to_vec());
+            at += n;
+        }
+    }
 }
 
 /// Whether `f` was found by its signature alone, not by a shrink: a quantization grid
@@ -272,4 +307,30 @@ fn joint_refit(
         ratios: ps.iter().copied().zip(fit.theta.iter().copied()).collect(),
         params,
     })
+}
+
+fn trace_round(k: usize, r: &[(Fitted, Scores)]) {
+    let Some(path) = std::env::var_os("AXB_TRACE") else {
+        return;
+    };
+    let mut out = String::new();
+    for (f, s) in r {
+        out += &format!(
+            "round {k} {:<22} shrink {:6.3} pos {:6.3} force {:6.3} score {:6.3} sig {} ev {} | {} | {}",
+            f.effect.name(),
+            s.shrink,
+            s.shrink_pos,
+            s.shrink_force.unwrap_or(f64::NAN),
+            s.score,
+            s.significant,
+            f.evidence.pass,
+            f.note,
+            f.evidence.text.chars().take(160).collect::<String>()
+        );
+        out.push('\n');
+    }
+    use std::io::Write;
+    if let Ok(mut fh) = std::fs::OpenOptions::new().append(true).create(true).open(path) {
+        let _ = fh.write_all(out.as_bytes());
+    }
 }

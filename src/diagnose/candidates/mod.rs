@@ -194,6 +194,9 @@ pub struct Fitted {
     pub applied: Applied,
     /// The calibration ratios of `cand` (fitted again alongside the effect, or the base's).
     pub ratios: Vec<f64>,
+    /// The selected effects' parameters in `cand` when they were fitted again alongside
+    /// this one ([`Context::selected_theta`] order); empty when they were kept.
+    pub sel_theta: Vec<f64>,
 }
 
 /// How a fitted effect changes a model, so that it can be added to another base (the joint
@@ -236,6 +239,37 @@ pub fn set_lead_table(c: &mut Cand, t: &[(f64, f64)]) {
     l.table = t.to_vec();
 }
 
+/// An effect selected in an earlier round, as the later rounds see it.
+#[derive(Debug, Clone)]
+pub struct Selected {
+    /// How it was added.
+    pub applied: Applied,
+    /// Whether its parameters are fitted again alongside every later candidate whose
+    /// signature is there (forward selection that re-fits after each addition: an effect
+    /// found first keeps only what the next one does not explain better).
+    pub refit: bool,
+}
+
+impl Selected {
+    /// The effect and its parameters, when they are fitted again in later rounds.
+    fn refit_params(&self) -> Option<(Effect, &[f64])> {
+        match (&self.applied, self.refit) {
+            (Applied::Params(e, th), true) => Some((*e, th.as_slice())),
+            _ => None,
+        }
+    }
+}
+
+/// Whether a friction effect and a calibration ratio are one quantity (a Coulomb ratio and
+/// an added Coulomb force, or viscous): fitting both is degenerate.
+fn owns(e: Effect, p: super::calibrate::CalParam) -> bool {
+    use super::calibrate::CalParam;
+    matches!(
+        (e, p),
+        (Effect::CoulombFriction, CalParam::Coulomb) | (Effect::ViscousFriction, CalParam::Viscous)
+    )
+}
+
 /// What every candidate fit needs.
 pub struct Context<'c, 'a> {
     /// The residual engine.
@@ -243,7 +277,7 @@ pub struct Context<'c, 'a> {
     /// The nominal model, before calibration.
     pub nominal: &'c Cand,
     /// The effects selected so far (the base is the nominal, calibrated, with these).
-    pub selected: &'c [Applied],
+    pub selected: &'c [Selected],
     /// The model effects are added to.
     pub base: &'c Cand,
     /// Its residuals.
@@ -281,17 +315,51 @@ impl Context<'_, '_> {
         }
     }
 
-    /// The nominal, calibrated by `ratios`, with the selected effects: a base in which the
-    /// calibration can move again.
-    fn rebuilt(&self, ratios: &[f64]) -> Cand {
+    /// The nominal, calibrated by `ratios`, with the selected effects, those re-fitted at
+    /// `sel_theta` (their parameters in order, see [`Context::selected_theta`]): a base in
+    /// which the calibration and the earlier effects can move again.
+    fn rebuilt(&self, ratios: &[f64], sel_theta: &[f64]) -> Cand {
         let mut c = self.nominal.clone();
         for ((p, _), r) in self.cal.ratios.iter().zip(ratios) {
             p.apply(&mut c.model.axis, *r);
         }
-        for a in self.selected {
-            a.apply(&mut c);
+        let mut at = 0;
+        for s in self.selected {
+            match s.refit_params() {
+                Some((e, th)) => {
+                    let n = th.len();
+                    let th = sel_theta.get(at..at + n).unwrap_or(th);
+                    e.apply(th, &mut c.model);
+                    at += n;
+                }
+                None => s.applied.apply(&mut c),
+            }
         }
         c
+    }
+
+    /// The parameters of the selected effects that are fitted again, in order.
+    pub fn selected_theta(&self) -> Vec<f64> {
+        self.selected
+            .iter()
+            .filter_map(Selected::refit_params)
+            .flat_map(|(_, th)| th.iter().copied())
+            .collect()
+    }
+
+    /// Bounds of [`Context::selected_theta`].
+    fn selected_params(&self) -> Vec<Param> {
+        self.selected
+            .iter()
+            .filter_map(Selected::refit_params)
+            .flat_map(|(e, th)| {
+                e.params().iter().zip(th).map(|(d, v)| Param {
+                    lo: d.lo,
+                    hi: d.hi,
+                    scale: v.abs().max(d.init.abs()).max(1e-9),
+                })
+            })
+            .collect()
     }
 
     /// Fits `effect` on the base by least squares over its parameters, from the evidence's
@@ -312,21 +380,34 @@ impl Context<'_, '_> {
             .collect();
         let joint = ev.pass;
         let ratios0: Vec<f64> = self.ratios.to_vec();
-        // The effect's own calibration parameter stays put: a Coulomb ratio and an added
-        // Coulomb force (or viscous) are one quantity, and fitting both is degenerate.
-        let owned = match effect {
-            Effect::CoulombFriction => Some(super::calibrate::CalParam::Coulomb),
-            Effect::ViscousFriction => Some(super::calibrate::CalParam::Viscous),
-            _ => None,
+        // A ratio that is one quantity with this effect or a selected one stays put (see
+        // [`owns`]).
+        let owned = |p: super::calibrate::CalParam| {
+            owns(effect, p)
+                || self
+                    .selected
+                    .iter()
+                    .filter_map(Selected::refit_params)
+                    .any(|(e, _)| owns(e, p))
         };
         let free: Vec<usize> = (0..ratios0.len())
-            .filter(|&i| joint && Some(self.cal.ratios[i].0) != owned)
+            .filter(|&i| joint && !owned(self.cal.ratios[i].0))
             .collect();
         params.extend(free.iter().map(|_| Param {
             lo: 1.0 - MAX_RATIO_CHANGE,
             hi: 1.0 + MAX_RATIO_CHANGE,
             scale: 1.0,
         }));
+        // The earlier effects move with the candidate when its signature is there.
+        let sel0 = if joint {
+            self.selected_theta()
+        } else {
+            vec![]
+        };
+        if joint {
+            params.extend(self.selected_params());
+        }
+        let n_r = free.len();
         let ratios_of = |th: &[f64]| -> Vec<f64> {
             let mut r = ratios0.clone();
             for (j, &i) in free.iter().enumerate() {
@@ -336,7 +417,8 @@ impl Context<'_, '_> {
         };
         let build = |th: &[f64]| -> Cand {
             if joint {
-                with_effect(&self.rebuilt(&ratios_of(th)), effect, &th[..n_e])
+                let sel = &th[n_e + n_r..];
+                with_effect(&self.rebuilt(&ratios_of(th), sel), effect, &th[..n_e])
             } else {
                 with_effect(self.base, effect, th)
             }
@@ -345,6 +427,7 @@ impl Context<'_, '_> {
         let mut best: Option<lm::LmFit> = None;
         for mut start in starts(effect, &ev.hint) {
             start.extend(free.iter().map(|&i| ratios0[i]));
+            start.extend(sel0.iter().copied());
             let f = lm::fit(&start, &params, &rows, 0.03, 6)?;
             if best.as_ref().is_none_or(|b| f.cost < b.cost) {
                 best = Some(f);
@@ -377,6 +460,11 @@ impl Context<'_, '_> {
             note: String::new(),
             evidence: ev,
             refit: true,
+            sel_theta: if joint {
+                f.theta[n_e + n_r..].to_vec()
+            } else {
+                vec![]
+            },
             ratios,
         }))
     }
