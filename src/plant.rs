@@ -155,8 +155,10 @@ pub struct StrokeFriction {
     pitch_m: f64,
     rise_ratio: f64,
     rise_n: f64,
-    growth_strokes: f64,
-    recovery_m: f64,
+    /// 1/growth strokes and 1/recovery distance: the per-step update multiplies (a division on
+    /// the friction's loop-carried chain costs more than the rest of the update).
+    inv_growth: f64,
+    inv_recovery_per_m: f64,
     /// Short-stroke level n.
     pub level: f64,
     /// e^(−n/growth), kept up to date with n.
@@ -179,8 +181,8 @@ impl StrokeFriction {
             pitch_m: units::mm_to_m(s.pitch_mm),
             rise_ratio: s.rise_ratio,
             rise_n: s.rise_n,
-            growth_strokes: s.growth_strokes,
-            recovery_m: units::mm_to_m(s.recovery_mm),
+            inv_growth: 1.0 / s.growth_strokes,
+            inv_recovery_per_m: 1.0 / units::mm_to_m(s.recovery_mm),
             level: 0.0,
             decay: 1.0,
             beyond_done_m: 0.0,
@@ -199,12 +201,12 @@ impl StrokeFriction {
         {
             let beyond = (x_m - prev).abs() - self.pitch_m;
             if beyond > self.beyond_done_m {
-                let u = (beyond - self.beyond_done_m.max(0.0)) / self.recovery_m;
+                let u = (beyond - self.beyond_done_m.max(0.0)) * self.inv_recovery_per_m;
                 self.beyond_done_m = beyond;
                 // Per step u is ~1e-3, so the series is exact to ~1e-12 and avoids two exp
                 // calls every T3 on a long stroke; each reversal recomputes exactly.
                 let f = small_exp(-u);
-                let g = self.level / self.growth_strokes;
+                let g = self.level * self.inv_growth;
                 self.level *= f;
                 self.decay *= small_exp(g * (1.0 - f));
                 if self.level < 1e-6 {
@@ -234,7 +236,7 @@ impl StrokeFriction {
     }
 
     fn update_scale(&mut self) {
-        self.decay = (-self.level / self.growth_strokes).exp();
+        self.decay = (-self.level * self.inv_growth).exp();
         self.refresh();
     }
 
@@ -328,14 +330,19 @@ impl LeadErr {
         self.at_enabled(x_m)
     }
 
-    #[inline]
+    #[inline(always)]
     fn at_enabled(&self, x_m: f64) -> f64 {
         // One lookup per T3 instead of a libm sin of a large argument (x/period reaches the
         // hundreds on a long axis); see `sin_table` for the error bound.
         let turns = x_m * self.inv_period_per_m;
         let frac = turns - f64::floor(turns);
         let cyclic = self.amplitude_m * sin_table(frac + self.phase_turns);
-        cyclic + self.cumulative * x_m + crate::table::interp(&self.table, x_m)
+        let table = if self.table.is_empty() {
+            0.0
+        } else {
+            crate::table::interp(&self.table, x_m)
+        };
+        cyclic + self.cumulative * x_m + table
     }
 }
 
@@ -731,6 +738,13 @@ impl AxisPlant {
             return;
         }
         let (scale, add) = (self.stroke.scale, self.stroke.add_n);
+        // The film sees the stroke as it stood at the start of this period and acts from the
+        // next one: a lag of one T3 against a film that builds up over strokes, which keeps
+        // the level's update (exponentials, reversal bookkeeping) off the chain from one
+        // period's table velocity to the next.
+        if FULL && self.stroke.enabled {
+            self.stroke.observe(self.x_t, self.v_t);
+        }
         let f_load = self.f_grav_n + ext_n;
         // One match per T3, the sub-step loop inside each arm: the mechanism never changes
         // between sub-steps.
@@ -751,9 +765,6 @@ impl AxisPlant {
             }
             Mech::TwoMass { .. } => 0.0,
         };
-        if FULL && self.stroke.enabled {
-            self.stroke.observe(self.x_t, self.v_t);
-        }
         self.thermal
             .step((fric * self.v_t).abs(), self.v_t.abs(), self.t3_s);
         self.refresh_out::<FULL>(fric);
