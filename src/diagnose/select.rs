@@ -330,7 +330,11 @@ fn trace_round(k: usize, r: &[(Fitted, Scores)]) {
         out.push('\n');
     }
     use std::io::Write;
-    if let Ok(mut fh) = std::fs::OpenOptions::new().append(true).create(true).open(path) {
+    if let Ok(mut fh) = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path)
+    {
         let _ = fh.write_all(out.as_bytes());
     }
 }

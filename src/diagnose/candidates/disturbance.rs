@@ -199,7 +199,15 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
     };
     let min_gap = ((0.5 / dt) as usize).max(4);
     let steps = evidence::steps(&rem, min_gap, 10.0, 10);
-    if !steps.is_empty() {
+    let window = ((0.02 / dt) as usize).max(4);
+    let bursts = evidence::bursts(&rem, window, 10.0);
+    let bursts_ok = !bursts.is_empty() && bursts.len() <= 400;
+    // A burst is two opposite level changes close together: the step search (at least
+    // 0.5 s between steps) takes one edge of each for a lasting step. When both shapes are
+    // there, the one that leaves less of the unexplained force wins.
+    let steps_first =
+        !steps.is_empty() && (!bursts_ok || steps_sse(&rem, &steps) <= bursts_sse(&rem, &bursts));
+    if steps_first {
         let mut times_s = vec![];
         let mut levels_n = vec![];
         let mut level = 0.0;
@@ -220,9 +228,7 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
         .with("steps", steps.len() as f64);
         return (ev, table(Disturbance::Steps { times_s, levels_n }));
     }
-    let window = ((0.02 / dt) as usize).max(4);
-    let bursts = evidence::bursts(&rem, window, 10.0);
-    if bursts.is_empty() || bursts.len() > 400 {
+    if !bursts_ok {
         return (
             Evidence::absent(
                 "the force no state explains is neither periodic nor stepped nor bursty",
@@ -249,6 +255,33 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
         })
         .collect();
     (ev, table(Disturbance::Windows(windows)))
+}
+
+/// What a level-step reading leaves of `y`: y minus the level the steps reach (0 before the
+/// first, as [`Disturbance::Steps`] has it), squared and summed.
+fn steps_sse(y: &[f64], steps: &[evidence::Step]) -> f64 {
+    let mut level = 0.0;
+    let mut next = steps.iter().peekable();
+    let mut sse = 0.0;
+    for (k, v) in y.iter().enumerate() {
+        while let Some(st) = next.next_if(|st| st.index <= k) {
+            level += st.jump;
+        }
+        sse += (v - level) * (v - level);
+    }
+    sse
+}
+
+/// What a burst reading leaves of `y`: inside each burst y minus its mean, elsewhere y.
+fn bursts_sse(y: &[f64], bursts: &[evidence::Burst]) -> f64 {
+    let mut sse: f64 = y.iter().map(|v| v * v).sum();
+    for b in bursts {
+        let seg = &y[b.start.min(y.len())..b.end.min(y.len())];
+        let before: f64 = seg.iter().map(|v| v * v).sum();
+        let after: f64 = seg.iter().map(|v| (v - b.mean) * (v - b.mean)).sum();
+        sse += after - before;
+    }
+    sse
 }
 
 /// Where a wave read off the position residual acts: on the table or in the amplifier's
@@ -279,8 +312,11 @@ pub fn fit(ctx: &Context) -> Result<Option<Fitted>, DiagnoseError> {
     let (Some(shaped), true) = (shaped, ev.pass) else {
         return Ok(None);
     };
-    let d = refine(ctx, place(ctx, shaped)?)?;
-    let applied = super::Applied::Disturbance(d.clone(), vec![]);
+    let placed = place(ctx, shaped)?;
+    let detected = placed.clone();
+    let d = refine(ctx, placed)?;
+    let (d, d_val) = time_held_out_bursts(ctx, d, &detected);
+    let applied = super::Applied::Disturbance(d.clone(), d_val);
     let mut cand = ctx.base.clone();
     applied.apply(&mut cand);
     let eval = ctx.eng.evaluate(&cand)?;
@@ -357,9 +393,89 @@ fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
     let refined = match inner {
         Disturbance::Square { .. } => refine_square(&rp, inner)?,
         Disturbance::Sine { .. } => refine_sine(&rp, inner)?,
+        Disturbance::Windows(w) => refine_windows(&rp, w)?,
         other => other,
     };
     Ok(rp.site(refined))
+}
+
+/// Burst levels from one replay: the residual's mean over a window lags the force (the loop
+/// takes over part of it), so all levels are scaled by the one factor that fits the
+/// replays best.
+fn refine_windows(rp: &Replays, w: Vec<ForceEvent>) -> Result<Disturbance, DiagnoseError> {
+    let col = rp.change(Disturbance::Windows(w.clone()))?;
+    let den = col.norm_squared();
+    if !(den > 0.0) {
+        return Ok(Disturbance::Windows(w));
+    }
+    let alpha = (-col.dot(&rp.r0) / den).clamp(0.0, 10.0);
+    if !alpha.is_finite() || alpha == 0.0 {
+        return Ok(Disturbance::Windows(w));
+    }
+    Ok(Disturbance::Windows(
+        w.into_iter()
+            .map(|e| ForceEvent {
+                force_n: e.force_n * alpha,
+                ..e
+            })
+            .collect(),
+    ))
+}
+
+/// Bursts come at times no state predicts, so the held-out part's own bursts are timed by
+/// the same detector on the held-out residual; their size is the fitting part's (the
+/// median level found there, signed as the held-out residual leans). The held-out check
+/// then asks whether bursts of that size explain what the held-out part shows. Returns the
+/// disturbance on the main record (fitting windows plus, when the held-out part is the
+/// record's end, its windows) and those on a validation record. A held-out stretch counts
+/// as a burst only if it looks like those of the fitting part (`detected`, before the
+/// levels were refined): no longer than twice the longest, and a residual at least half as
+/// large as their median.
+fn time_held_out_bursts(
+    ctx: &Context,
+    d: Disturbance,
+    detected: &Disturbance,
+) -> (Disturbance, Vec<Disturbance>) {
+    let (Disturbance::Windows(mut w), Disturbance::Windows(seen)) = (d.clone(), detected) else {
+        return (d, vec![]);
+    };
+    let mut seen_abs: Vec<f64> = seen.iter().map(|e| e.force_n.abs()).collect();
+    seen_abs.sort_by(f64::total_cmp);
+    let seen_level = seen_abs.get(seen_abs.len() / 2).copied().unwrap_or(0.0);
+    let longest = seen.iter().map(|e| e.i1 - e.i0).max().unwrap_or(0);
+    let mut levels: Vec<f64> = w.iter().map(|e| e.force_n.abs()).collect();
+    if levels.is_empty() {
+        return (Disturbance::Windows(w), vec![]);
+    }
+    levels.sort_by(f64::total_cmp);
+    let level = levels[levels.len() / 2];
+    let dt = ctx.eng.split.main.t3_s;
+    let window = ((0.02 / dt) as usize).max(4);
+    let y = ctx
+        .base_eval
+        .hold_force
+        .as_deref()
+        .unwrap_or(&ctx.base_eval.hold_pos);
+    let held: Vec<ForceEvent> = evidence::bursts(y, window, 10.0)
+        .into_iter()
+        .filter(|b| b.end - b.start <= 2 * longest && b.mean.abs() >= 0.5 * seen_level)
+        .take(400)
+        .map(|b| ForceEvent {
+            i0: b.start,
+            i1: b.end,
+            force_n: -level.copysign(b.mean),
+        })
+        .collect();
+    if ctx.eng.split.validate.is_some() {
+        return (Disturbance::Windows(w), vec![Disturbance::Windows(held)]);
+    }
+    let off = ctx.eng.split.n_fit;
+    w.extend(held.into_iter().map(|e| ForceEvent {
+        i0: e.i0 + off,
+        i1: e.i1 + off,
+        ..e
+    }));
+    (Disturbance::Windows(w), vec![])
 }
 
 /// A sine's amplitude, phase and offset: its sine, cosine and constant parts are three

@@ -141,10 +141,19 @@ fn resonance(ctx: &Context) -> Evidence {
     let y: &[f64] = ctx.sig.r_force.as_deref().unwrap_or(&ctx.sig.r_pos);
     let f_hi = (0.4 / dt).min(600.0);
     if std::env::var_os("AXB_RES").is_some() {
-        for (name, yy) in [("force", ctx.sig.r_force.as_deref()), ("pos", Some(&ctx.sig.r_pos[..]))] {
+        for (name, yy) in [
+            ("force", ctx.sig.r_force.as_deref()),
+            ("pos", Some(&ctx.sig.r_pos[..])),
+        ] {
             if let Some(yy) = yy {
-                eprintln!("RES {name} ref {:?}", evidence::resonance(yy, dt, 8.0, f_hi, Some(&ctx.sig.cmd_acc_mps2)));
-                eprintln!("RES {name} noref {:?}", evidence::resonance(yy, dt, 8.0, f_hi, None));
+                eprintln!(
+                    "RES {name} ref {:?}",
+                    evidence::resonance(yy, dt, 8.0, f_hi, Some(&ctx.sig.cmd_acc_mps2))
+                );
+                eprintln!(
+                    "RES {name} noref {:?}",
+                    evidence::resonance(yy, dt, 8.0, f_hi, None)
+                );
             }
         }
     }
