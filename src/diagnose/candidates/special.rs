@@ -140,23 +140,6 @@ fn resonance(ctx: &Context) -> Evidence {
     let dt = ctx.eng.split.main.t3_s;
     let y: &[f64] = ctx.sig.r_force.as_deref().unwrap_or(&ctx.sig.r_pos);
     let f_hi = (0.4 / dt).min(600.0);
-    if std::env::var_os("AXB_RES").is_some() {
-        for (name, yy) in [
-            ("force", ctx.sig.r_force.as_deref()),
-            ("pos", Some(&ctx.sig.r_pos[..])),
-        ] {
-            if let Some(yy) = yy {
-                eprintln!(
-                    "RES {name} ref {:?}",
-                    evidence::resonance(yy, dt, 8.0, f_hi, Some(&ctx.sig.cmd_acc_mps2))
-                );
-                eprintln!(
-                    "RES {name} noref {:?}",
-                    evidence::resonance(yy, dt, 8.0, f_hi, None)
-                );
-            }
-        }
-    }
     match evidence::resonance(y, dt, 8.0, f_hi, Some(&ctx.sig.cmd_acc_mps2)) {
         Some(r) if r.peak_ratio >= 8.0 && r.ref_ratio.is_none_or(|x| x >= 4.0) => {
             let a = &ctx.base.model.axis;
