@@ -405,7 +405,7 @@ fn refine(ctx: &Context, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
 fn refine_windows(rp: &Replays, w: Vec<ForceEvent>) -> Result<Disturbance, DiagnoseError> {
     let col = rp.change(Disturbance::Windows(w.clone()))?;
     let den = col.norm_squared();
-    if !(den > 0.0) {
+    if den.is_nan() || den <= 0.0 {
         return Ok(Disturbance::Windows(w));
     }
     let alpha = (-col.dot(&rp.r0) / den).clamp(0.0, 10.0);
@@ -639,5 +639,32 @@ fn describe(d: &Disturbance) -> (Vec<String>, Vec<f64>) {
                 w.iter().fold(0.0f64, |m, e| m.max(e.force_n.abs())),
             ],
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{bursts_sse, steps_sse};
+    use crate::diagnose::evidence;
+
+    /// Two bursts of opposite sign in noise: the step search (steps at least 0.5 s apart)
+    /// reads one edge of each as a lasting level; the burst reading leaves far less.
+    #[test]
+    fn bursts_are_not_read_as_level_steps() {
+        let dt = 0.001;
+        let mut y: Vec<f64> = (0..20_000)
+            .map(|k| 2.0 * ((k as f64 * 12.9898).sin() * 43_758.545).fract())
+            .collect();
+        y[3000..3100].iter_mut().for_each(|v| *v += 100.0);
+        y[12_000..12_150].iter_mut().for_each(|v| *v -= 120.0);
+        let st = evidence::steps(&y, (0.5 / dt) as usize, 10.0, 10);
+        let bu = evidence::bursts(&y, 20, 10.0);
+        assert_eq!(bu.len(), 2, "{bu:?}");
+        assert!((bu[0].mean - 100.0).abs() < 25.0, "{bu:?}");
+        let (s, b) = (steps_sse(&y, &st), bursts_sse(&y, &bu));
+        // The bursts hold 100²·100 + 120²·150 ≈ 3.2e6; what their reading leaves is the
+        // noise (≈ 27 000) and the windows' overhang at the edges.
+        assert!(b < 0.5 * s, "bursts leave {b}, steps {s}");
+        assert!(b < 0.3 * 3.2e6, "bursts leave {b}");
     }
 }
