@@ -703,7 +703,7 @@ impl Machine {
             }
             let sag = a.sag_m;
             match &mut self.rec {
-                None => a.axis_loop.run(&inputs[..len], |_, _| {}),
+                None => a.axis_loop.run_quiet(&inputs[..len]),
                 Some(rec) => {
                     let (every, cap, first) = (u64::from(rec.every), rec.cap, rec.staged);
                     let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);

@@ -193,7 +193,10 @@ impl StrokeFriction {
         }
     }
 
-    #[inline]
+    /// Inlined into the T3 step: the per-period work (the recovery on a long stroke) is a
+    /// few products; a reversal, a few per second, goes out of line. A call every period
+    /// made the compiler save every live floating-point value around it.
+    #[inline(always)]
     fn observe(&mut self, x_m: f64, v_mps: f64) {
         // Recovery: past the pitch, the film rebuilds with every mm travelled.
         if self.level > 0.0
@@ -220,9 +223,15 @@ impl StrokeFriction {
             return;
         }
         let dir = v_mps.signum();
-        if dir == self.dir {
-            return;
+        if dir != self.dir {
+            self.reversal(x_m, dir);
         }
+    }
+
+    /// A reversal at `x_m` into direction `dir`: a short stroke raises the level.
+    #[cold]
+    #[inline(never)]
+    fn reversal(&mut self, x_m: f64, dir: f64) {
         if self.dir != 0.0
             && let Some(prev) = self.last_rev_m
             && (x_m - prev).abs() < self.pitch_m
@@ -298,6 +307,16 @@ impl ScrewThermal {
             dt_s * self.inv_capacity * (q_w - self.loss_w_per_k * (self.temp_c - self.ambient_c));
     }
 
+    /// Elongation per metre from the fixed bearing at the current temperature (0 when off).
+    #[inline(always)]
+    fn growth_per_m(&self) -> f64 {
+        if self.enabled {
+            self.alpha_per_k * (self.temp_c - self.reference_c)
+        } else {
+            0.0
+        }
+    }
+
     /// Elongation of the screw between the fixed bearing and the nut at `x_m`.
     #[inline]
     pub fn elongation_m(&self, x_m: f64) -> f64 {
@@ -313,6 +332,8 @@ impl ScrewThermal {
 #[derive(Debug, Clone)]
 struct LeadErr {
     enabled: bool,
+    /// [`sin_lookup`]'s points, held here so the T3 step does not check their initialisation.
+    sin: &'static SinPoints,
     amplitude_m: f64,
     inv_period_per_m: f64,
     phase_turns: f64,
@@ -332,18 +353,52 @@ impl LeadErr {
 
     #[inline(always)]
     fn at_enabled(&self, x_m: f64) -> f64 {
+        self.linearised(x_m).0
+    }
+
+    /// The error at `x_m` and its slope there (d error / dx). The error is piecewise linear
+    /// (the sine by its table, the measured table by its points), so the pair gives the
+    /// error exactly anywhere in the segments around `x_m`.
+    #[inline(always)]
+    fn linearised(&self, x_m: f64) -> (f64, f64) {
         // One lookup per T3 instead of a libm sin of a large argument (x/period reaches the
-        // hundreds on a long axis); see `sin_table` for the error bound.
+        // hundreds on a long axis); see `sin_lookup` for the error bound.
         let turns = x_m * self.inv_period_per_m;
         let frac = turns - f64::floor(turns);
-        let cyclic = self.amplitude_m * sin_table(frac + self.phase_turns);
-        let table = if self.table.is_empty() {
-            0.0
+        let (s, ds_per_turn) = sin_lookup(self.sin, frac + self.phase_turns);
+        let (table, table_slope) = if self.table.is_empty() {
+            (0.0, 0.0)
         } else {
-            crate::table::interp(&self.table, x_m)
+            crate::table::interp_slope(&self.table, x_m)
         };
-        cyclic + self.cumulative * x_m + table
+        (
+            self.amplitude_m * s + self.cumulative * x_m + table,
+            self.amplitude_m * ds_per_turn * self.inv_period_per_m + self.cumulative + table_slope,
+        )
     }
+}
+
+/// Where the table is at the end of a period, as a function of the screw-frame position
+/// `x_t` there: `pos = gain·x_t + offset`. It is built one period ahead, from the state at
+/// the start of the previous period, so that neither the thermal growth nor the lead error
+/// sits on the chain that runs from one period's feedback to the next: that chain gets one
+/// product and one sum instead of a table lookup and a temperature update.
+///
+/// - Thermal growth: the screw temperature two periods back. It moves by µK per period
+///   against time constants of minutes.
+/// - Lead error: linearised around the predicted end position `x_ref` = x_t + 2·T3·v_t.
+///   The real end position differs from it by 2·T3·Δv, below 1e-6 m at any acceleration
+///   the drive reaches in two periods. The error is piecewise linear (table points), so
+///   the neglected part is the slope change at a point passed inside that distance:
+///   ~1e-11 m for a 2 µm, 10 mm-period lead error, the size of the sine table's own error.
+#[derive(Debug, Clone, Copy, Default)]
+struct PosMap {
+    gain: f64,
+    offset: f64,
+    growth_per_m: f64,
+    /// The lead error is `lead_slope·x_t + lead_offset_m`.
+    lead_slope: f64,
+    lead_offset_m: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -510,6 +565,8 @@ pub struct AxisPlant {
     contact: i8,
     /// Only the common effects are on (see [`AxisPlant::is_plain`]).
     plain: bool,
+    /// The position map for the end of the coming period (see [`PosMap`]).
+    next_map: PosMap,
     out: PlantOut,
 }
 
@@ -529,6 +586,7 @@ impl AxisPlant {
             thermal: ScrewThermal::from_params(a),
             lead: LeadErr {
                 enabled: false,
+                sin: sin_points(),
                 amplitude_m: 0.0,
                 inv_period_per_m: 0.0,
                 phase_turns: 0.0,
@@ -549,6 +607,7 @@ impl AxisPlant {
             v_t: 0.0,
             contact: 1,
             plain: false,
+            next_map: PosMap::default(),
             out: PlantOut::default(),
         };
         p.retune(a);
@@ -674,6 +733,7 @@ impl AxisPlant {
         let l = &a.lead_error;
         self.lead = LeadErr {
             enabled: l.enabled,
+            sin: sin_points(),
             amplitude_m: units::um_to_m(l.amplitude_um),
             inv_period_per_m: 1.0 / units::mm_to_m(l.period_mm),
             phase_turns: l.phase_deg / 360.0,
@@ -702,6 +762,7 @@ impl AxisPlant {
             0.0
         };
         self.plain = self.plain_now();
+        self.next_map = self.pos_map::<true>(self.x_t + self.t3_s * self.v_t);
     }
 
     /// Advances the mechanics by one T3 under the motor force `force_n` (load side) and an
@@ -745,11 +806,28 @@ impl AxisPlant {
         if FULL && self.stroke.enabled {
             self.stroke.observe(self.x_t, self.v_t);
         }
+        // This period's map was built a period ago; the next one is built now, from the state
+        // at the start of this period (see `PosMap`).
+        let map = self.next_map;
+        self.next_map = self.pos_map::<FULL>(self.x_t + 2.0 * self.t3_s * self.v_t);
         let f_load = self.f_grav_n + ext_n;
         // One match per T3, the sub-step loop inside each arm: the mechanism never changes
         // between sub-steps.
+        // A single sub-step (every rigid drive, most couplings) is written out without the
+        // loop: a loop makes the compiler hoist the step's constants into spilled
+        // temporaries, tens of instructions per period.
         let fric = match self.mech {
-            Mech::Rigid => self.substeps_rigid::<FULL>(force_n, f_load, scale, add),
+            Mech::Rigid if self.n_sub == 1 => self.sub_rigid::<FULL>(force_n, f_load, scale, add),
+            Mech::Rigid => {
+                let mut fric = 0.0;
+                for _ in 0..self.n_sub {
+                    fric = self.sub_rigid::<FULL>(force_n, f_load, scale, add);
+                }
+                fric
+            }
+            Mech::RigidPlay if self.n_sub == 1 => {
+                self.step_play::<FULL>(force_n, f_load, self.h_s, scale, add)
+            }
             Mech::RigidPlay => {
                 let mut fric = 0.0;
                 for _ in 0..self.n_sub {
@@ -761,13 +839,22 @@ impl AxisPlant {
                 k_n_per_m,
                 c_n_s_per_m,
             } if FULL => {
-                self.substeps_two_mass(force_n, f_load, scale, add, k_n_per_m, c_n_s_per_m)
+                let (k, c) = (k_n_per_m, c_n_s_per_m);
+                if self.n_sub == 1 {
+                    self.sub_two_mass(force_n, f_load, scale, add, k, c)
+                } else {
+                    let mut fric = 0.0;
+                    for _ in 0..self.n_sub {
+                        fric = self.sub_two_mass(force_n, f_load, scale, add, k, c);
+                    }
+                    fric
+                }
             }
             Mech::TwoMass { .. } => 0.0,
         };
         self.thermal
             .step((fric * self.v_t).abs(), self.v_t.abs(), self.t3_s);
-        self.refresh_out::<FULL>(fric);
+        self.write_out::<FULL>(fric, &map);
     }
 
     #[inline(never)]
@@ -775,35 +862,32 @@ impl AxisPlant {
         self.step_with::<true>(force_n, ext_n);
     }
 
-    /// The rigid drive without play: one body.
+    /// One sub-step of the rigid drive without play: one body.
     #[inline(always)]
-    fn substeps_rigid<const FULL: bool>(
+    fn sub_rigid<const FULL: bool>(
         &mut self,
         force_n: f64,
         f_load: f64,
         scale: f64,
         add: f64,
     ) -> f64 {
-        let mut fric = 0.0;
-        for _ in 0..self.n_sub {
-            let (v, f) =
-                self.friction
-                    .step::<FULL>(&self.body_all, self.v_t, f_load, force_n, scale, add);
-            // Trapezoidal position: exact for the force held over the sub-step. Advancing
-            // by the new velocity alone puts the position half a sub-step ahead of the
-            // continuous motion (0.5 ms at EMPS's 1 ms T3, 9 % of its following error).
-            self.x_t = trapezoid(self.x_t, self.h_s, self.v_t, v);
-            self.v_t = v;
-            self.v_m = v;
-            self.x_m = self.x_t;
-            fric = f;
-        }
-        fric
+        let (v, f) =
+            self.friction
+                .step::<FULL>(&self.body_all, self.v_t, f_load, force_n, scale, add);
+        // Trapezoidal position: exact for the force held over the sub-step. Advancing by the
+        // new velocity alone puts the position half a sub-step ahead of the continuous
+        // motion (0.5 ms at EMPS's 1 ms T3, 9 % of its following error).
+        self.x_t = trapezoid(self.x_t, self.h_s, self.v_t, v);
+        self.v_t = v;
+        self.v_m = v;
+        self.x_m = self.x_t;
+        f
     }
 
-    /// Motor and table joined by a spring and damper, with an optional dead zone.
+    /// One sub-step of motor and table joined by a spring and damper, with an optional
+    /// dead zone.
     #[inline(always)]
-    fn substeps_two_mass(
+    fn sub_two_mass(
         &mut self,
         force_n: f64,
         f_load: f64,
@@ -813,26 +897,22 @@ impl AxisPlant {
         c_n_s_per_m: f64,
     ) -> f64 {
         let h = self.h_s;
-        let mut fric = 0.0;
-        for _ in 0..self.n_sub {
-            let gap = self.x_m - self.x_t;
-            let defl = dead_zone(gap, self.half_gap_m);
-            let f_s = if defl != 0.0 || self.half_gap_m == 0.0 {
-                k_n_per_m * defl + c_n_s_per_m * (self.v_m - self.v_t)
-            } else {
-                0.0
-            };
-            let v_m0 = self.v_m;
-            self.v_m += self.motor_h_over_m * (force_n - f_s);
-            let (v, f) =
-                self.friction
-                    .step::<true>(&self.body_table, self.v_t, f_load, f_s, scale, add);
-            self.x_m = trapezoid(self.x_m, h, v_m0, self.v_m);
-            self.x_t = trapezoid(self.x_t, h, self.v_t, v);
-            self.v_t = v;
-            fric = f;
-        }
-        fric
+        let gap = self.x_m - self.x_t;
+        let defl = dead_zone(gap, self.half_gap_m);
+        let f_s = if defl != 0.0 || self.half_gap_m == 0.0 {
+            k_n_per_m * defl + c_n_s_per_m * (self.v_m - self.v_t)
+        } else {
+            0.0
+        };
+        let v_m0 = self.v_m;
+        self.v_m += self.motor_h_over_m * (force_n - f_s);
+        let (v, f) =
+            self.friction
+                .step::<true>(&self.body_table, self.v_t, f_load, f_s, scale, add);
+        self.x_m = trapezoid(self.x_m, h, v_m0, self.v_m);
+        self.x_t = trapezoid(self.x_t, h, self.v_t, v);
+        self.v_t = v;
+        f
     }
 
     /// Rigid drive with play: one body while a flank transmits force, two bodies in the gap,
@@ -888,11 +968,41 @@ impl AxisPlant {
         f
     }
 
-    #[inline(always)]
+    /// The outputs for the state as it is (placement, linearisation), and the map for the
+    /// coming period.
     fn refresh_out<const FULL: bool>(&mut self, fric_n: f64) {
-        let thermal = self.thermal.elongation_m(self.x_t);
-        let lead = if FULL { self.lead.at(self.x_t) } else { 0.0 };
-        let pos = self.x_t + thermal + lead;
+        let map = self.pos_map::<FULL>(self.x_t);
+        self.write_out::<FULL>(fric_n, &map);
+        self.next_map = self.pos_map::<FULL>(self.x_t + self.t3_s * self.v_t);
+    }
+
+    /// The map from the screw-frame position to the table's, for a period whose end position
+    /// is expected near `x_ref_m` (see [`PosMap`]).
+    #[inline(always)]
+    fn pos_map<const FULL: bool>(&self, x_ref_m: f64) -> PosMap {
+        let growth_per_m = self.thermal.growth_per_m();
+        let fixed_end_m = self.thermal.fixed_end_m;
+        let (lead_ref_m, lead_slope) = if FULL && self.lead.enabled {
+            self.lead.linearised(x_ref_m)
+        } else {
+            (0.0, 0.0)
+        };
+        let lead_offset_m = lead_ref_m - lead_slope * x_ref_m;
+        PosMap {
+            gain: 1.0 + growth_per_m + lead_slope,
+            offset: lead_offset_m - growth_per_m * fixed_end_m,
+            growth_per_m,
+            lead_slope,
+            lead_offset_m,
+        }
+    }
+
+    #[inline(always)]
+    fn write_out<const FULL: bool>(&mut self, fric_n: f64, map: &PosMap) {
+        let x = self.x_t;
+        let pos = map.gain * x + map.offset;
+        let thermal = map.growth_per_m * (x - self.thermal.fixed_end_m);
+        let lead = map.lead_slope * x + map.lead_offset_m;
         self.out = PlantOut {
             motor_pos_m: self.x_m,
             motor_enc_m: quantize(self.x_m, self.motor_q_m),
@@ -941,26 +1051,44 @@ fn small_exp(x: f64) -> f64 {
     if x.abs() < 0.01 {
         1.0 + x * (1.0 + x * (0.5 + x * (1.0 / 6.0)))
     } else {
-        x.exp()
+        cold_exp(x)
     }
+}
+
+#[cold]
+#[inline(never)]
+fn cold_exp(x: f64) -> f64 {
+    x.exp()
 }
 
 const SIN_N: usize = 1024;
 
-/// sin(2π·turns) from a 1024-point table with linear interpolation. The interpolation error
-/// is at most (2π/1024)²/8 ≈ 4.7e-6 of the amplitude: 1e-11 m for a 2 µm lead error.
-#[inline]
-fn sin_table(turns: f64) -> f64 {
-    static TABLE: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
-    let t = TABLE.get_or_init(|| {
-        (0..=SIN_N)
-            .map(|i| (std::f64::consts::TAU * i as f64 / SIN_N as f64).sin())
-            .collect()
-    });
+/// sin(2π·i/1024), i = 0 … 1024.
+type SinPoints = [f64; SIN_N + 1];
+
+/// The points of [`sin_lookup`]'s table.
+fn sin_points() -> &'static SinPoints {
+    static TABLE: std::sync::OnceLock<SinPoints> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        std::array::from_fn(|i| (std::f64::consts::TAU * i as f64 / SIN_N as f64).sin())
+    })
+}
+
+/// sin(2π·turns) by linear interpolation in the table `t` ([`sin_points`]), and its slope
+/// per turn in that segment. The interpolation error is at most (2π/1024)²/8 ≈ 4.7e-6 of the
+/// amplitude: 1e-11 m for a 2 µm lead error.
+#[inline(always)]
+fn sin_lookup(t: &SinPoints, turns: f64) -> (f64, f64) {
     let u = (turns - f64::floor(turns)) * SIN_N as f64;
-    let i = (u as usize).min(SIN_N - 1);
+    // u reaches 1024 itself when the fraction rounds up: that is the last segment's end.
+    let u_floor = f64::floor(u).min((SIN_N - 1) as f64);
+    // The segment index from the bits of 2^52 + ⌊u⌋ (exact: 0 ≤ ⌊u⌋ ≤ 1023): one sum and a
+    // mask instead of a saturating float-to-integer cast and two bounds checks per T3. A
+    // non-finite u (a diverged state) lands in some segment; the value is NaN anyway.
+    let i = ((u_floor + 4_503_599_627_370_496.0).to_bits() & (SIN_N as u64 - 1)) as usize;
     let f = u - i as f64;
-    t[i] + (t[i + 1] - t[i]) * f
+    let (a, b) = (t[i], t[i + 1]);
+    (a + (b - a) * f, (b - a) * SIN_N as f64)
 }
 
 #[inline]

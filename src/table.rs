@@ -6,25 +6,32 @@
 /// An empty table is 0; a NaN `x` gives NaN.
 #[inline]
 pub fn interp(points: &[(f64, f64)], x: f64) -> f64 {
+    interp_slope(points, x).0
+}
+
+/// [`interp`] at `x` and the slope dy/dx of the segment `x` falls in (0 outside the range,
+/// where the end value is held). The value is exactly [`interp`]'s.
+#[inline]
+pub fn interp_slope(points: &[(f64, f64)], x: f64) -> (f64, f64) {
     let (Some(first), Some(last)) = (points.first(), points.last()) else {
-        return 0.0;
+        return (0.0, 0.0);
     };
     if x.is_nan() {
         // A diverged state (a replay the fit drove unstable): no point to hold, and the
         // NaN must reach the caller's finiteness check rather than index before the table.
-        return f64::NAN;
+        return (f64::NAN, f64::NAN);
     }
     if x <= first.0 {
-        return first.1;
+        return (first.1, 0.0);
     }
     if x >= last.0 {
-        return last.1;
+        return (last.1, 0.0);
     }
     // First point with x_i > x; it exists because x < last.0.
     let i = points.partition_point(|p| p.0 <= x);
     let (x0, y0) = points[i - 1];
     let (x1, y1) = points[i];
-    y0 + (x - x0) / (x1 - x0) * (y1 - y0)
+    (y0 + (x - x0) / (x1 - x0) * (y1 - y0), (y1 - y0) / (x1 - x0))
 }
 
 /// Problems with a table, each as (path, reason): non-finite values, x not strictly
@@ -63,5 +70,7 @@ mod tests {
         assert_eq!(super::interp(&t, 0.5), 2.0);
         assert_eq!(super::interp(&t, -1.0), 1.0);
         assert_eq!(super::interp(&t, 2.0), 3.0);
+        assert_eq!(super::interp_slope(&t, 0.5), (2.0, 2.0));
+        assert_eq!(super::interp_slope(&t, 2.0), (3.0, 0.0));
     }
 }

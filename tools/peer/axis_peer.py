@@ -176,7 +176,12 @@ def kernel(raw, cmd, n23, c, record, out):
     x_m = x_t + contact * b2
     v_m = 0.0; v_t = 0.0
     enc = round_even(x_m * qinv) * q
-    pos = x_t + alpha_t * (temp - ref_c) * (x_t - fixed) + 0.0
+    # PosMap: pos = gain * x_t + offset, the screw growth taken from the temperature one
+    # period before the period it is used in (AxisPlant::pos_map; no lead error here)
+    g = alpha_t * (temp - ref_c)
+    gain = 1.0 + g + 0.0; offset = (0.0 - 0.0 * x_t) - g * fixed
+    pos = gain * x_t + offset
+    next_gain = gain; next_offset = offset
     # servo (Servo::new)
     integ = 0.0; force = 0.0; prev_ff = x0; hist = enc
     # SegmentAcc: one acceleration per T2 segment of the raw command
@@ -213,6 +218,10 @@ def kernel(raw, cmd, n23, c, record, out):
             out[2, k] = x_m
             out[3, k] = f_cmd / fpt
         # ---- plant (AxisPlant::step_play, one sub-step, f_load = 0)
+        gain = next_gain; offset = next_offset
+        g = alpha_t * (temp - ref_c)
+        next_gain = 1.0 + g + 0.0
+        next_offset = (0.0 - 0.0 * (x_t + 2.0 * t3 * v_t)) - g * fixed
         done = False
         if contact != 0:
             v, fr = friction_step(a_hm, a_mh, a_vi, a_kin, coul, visc, v_t, force)
@@ -242,7 +251,7 @@ def kernel(raw, cmd, n23, c, record, out):
         q_w = share * abs(fr * v_t) + motion * abs(v_t)
         temp += t3 * inv_cap * (q_w - loss * (temp - amb))
         enc = round_even(x_m * qinv) * q
-        pos = x_t + alpha_t * (temp - ref_c) * (x_t - fixed) + 0.0
+        pos = gain * x_t + offset
         if record:
             out[4, k] = fr
             out[5, k] = temp
