@@ -320,6 +320,7 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
         pos_source: None,
         starts_at_rest: false,
         beam_x_m: vec![],
+        logged_pos_m: None,
     };
     let sim = simulate(&truth, &rec, n);
     let quantized = kinds.contains(&Effect::Quantization);

@@ -41,6 +41,10 @@ pub struct Record {
     /// True when the record says it starts with the machine at rest at power-up (`# start:
     /// rest` in an axisbench trace); otherwise the start state is estimated from the data.
     pub starts_at_rest: bool,
+    /// The positions as logged, when `pos_m` was realigned by a fraction of a sample (a
+    /// skewed position channel): realigned values lie between the encoder's counts, so the
+    /// grid test reads these.
+    pub logged_pos_m: Option<Vec<f64>>,
 }
 
 impl Record {
@@ -91,6 +95,7 @@ impl Record {
             pos_source,
             starts_at_rest,
             beam_x_m: vec![],
+            logged_pos_m: None,
         };
         if is_uniform(t, t3_s) {
             return Ok(record(t[0], cols, false));
@@ -144,6 +149,7 @@ impl Record {
             pos_source: self.pos_source,
             starts_at_rest: self.starts_at_rest && r.start == 0,
             beam_x_m: self.beam_x_m.iter().map(s).collect(),
+            logged_pos_m: self.logged_pos_m.as_ref().map(s),
         }
     }
 }

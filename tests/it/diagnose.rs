@@ -213,6 +213,7 @@ fn a_force_in_the_amplifiers_output_moves_the_axis_like_one_on_the_table() {
         pos_source: None,
         beam_x_m: vec![],
         starts_at_rest: true,
+        logged_pos_m: None,
     };
     let wave = Disturbance::Square {
         period_s: 0.4,

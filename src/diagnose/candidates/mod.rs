@@ -108,6 +108,9 @@ pub struct Signals {
     pub t_s: Vec<f64>,
     /// Measured position, m.
     pub pos_m: Vec<f64>,
+    /// The positions as the sensor logged them (before a realignment of a skewed channel,
+    /// which puts values between its counts), m: what the grid test reads.
+    pub logged_pos_m: Vec<f64>,
     /// Measured velocity, m/s.
     pub vel_mps: Vec<f64>,
     /// Measured acceleration, m/s².
@@ -158,6 +161,10 @@ impl Signals {
             t_s: (0..n).map(|k| rec.t_s(k)).collect(),
             cmd_acc_mps2: derivative(&cmd_vel, 1, dt),
             cmd_vel_mps: derivative(&rec.cmd_m[..n], h, dt),
+            logged_pos_m: rec
+                .logged_pos_m
+                .as_ref()
+                .map_or_else(|| pos.clone(), |l| l[..n].to_vec()),
             pos_m: pos,
             vel_mps: vel,
             acc_mps2: acc,

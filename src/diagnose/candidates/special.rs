@@ -51,7 +51,7 @@ fn quantization(ctx: &Context) -> Evidence {
     // Coarser than the model's own sensor, and coarser than numbers written to a few
     // decimals (a CSV at 0.1 nm).
     let min_q = (3.0 * model_quantum_m(ctx)).max(1e-7);
-    match evidence::grid(&ctx.sig.pos_m, min_q, 0.02) {
+    match evidence::grid(&ctx.sig.logged_pos_m, min_q, 0.02) {
         Some(g) if g.on_grid >= 0.99 && g.by_chance <= 0.2 => Evidence {
             pass: true,
             text: format!(
