@@ -924,18 +924,20 @@ impl Machine {
                 };
             }
             self.run_position_comps(t + g as f64 * self.t3_s, period);
-            for (i, a) in self.axes.iter_mut().enumerate() {
-                let raw = self.comp_cmd[i];
-                let comp = raw + self.comp_out[i];
+            for ((a, &raw), &out) in self.axes.iter_mut().zip(&self.comp_cmd).zip(&self.comp_out) {
+                let comp = raw + out;
                 if any_direct {
                     a.buf_raw[g] = raw;
                     a.buf_comp[g] = comp;
                 } else {
-                    let prev_raw = a.seg.end_m();
-                    for jj in 0..n23 {
-                        let f = self.frac[jj];
-                        a.buf_raw[jj] = prev_raw + (raw - prev_raw) * f;
-                        a.buf_comp[jj] = a.prev_comp_m + (comp - a.prev_comp_m) * f;
+                    let (prev_raw, prev_comp) = (a.seg.end_m(), a.prev_comp_m);
+                    let rows = a.buf_raw[..n23]
+                        .iter_mut()
+                        .zip(&mut a.buf_comp[..n23])
+                        .zip(&self.frac[..n23]);
+                    for ((r, c), &f) in rows {
+                        *r = prev_raw + (raw - prev_raw) * f;
+                        *c = prev_comp + (comp - prev_comp) * f;
                     }
                     a.buf_raw[n23 - 1] = raw;
                     a.buf_comp[n23 - 1] = comp;
