@@ -30,6 +30,59 @@ pub struct LoopInput {
     pub ext_force_n: f64,
 }
 
+/// A run of consecutive loop inputs, read one period at a time by [`AxisLoop::run`] and
+/// [`AxisLoop::run_quiet`]. The machine's T2 block is one ([`T2Block`]): it is read straight
+/// from the NC's command buffers, so no array of inputs is written and read back.
+pub trait LoopInputs {
+    /// Number of periods.
+    fn periods(&self) -> usize;
+    /// The input of period `j` (< [`LoopInputs::periods`]).
+    fn at(&self, j: usize) -> LoopInput;
+}
+
+impl LoopInputs for [LoopInput] {
+    #[inline(always)]
+    fn periods(&self) -> usize {
+        self.len()
+    }
+    #[inline(always)]
+    fn at(&self, j: usize) -> LoopInput {
+        self[j]
+    }
+}
+
+/// One T2 period of a machine axis: the interpolated command rows and the segment's
+/// acceleration, no external force.
+pub struct T2Block<'a> {
+    /// Index of the block's first T3 period since the start.
+    pub k0: u64,
+    /// T3 period, s: period `j` starts at (k0 + j)·T3.
+    pub t3_s: f64,
+    /// Raw command per period, m.
+    pub cmd_raw_m: &'a [f64],
+    /// Compensated command per period, m (as long as `cmd_raw_m`).
+    pub cmd_nc_m: &'a [f64],
+    /// Commanded acceleration of the T2 segment, m/s².
+    pub acc_cmd_mps2: f64,
+}
+
+impl LoopInputs for T2Block<'_> {
+    #[inline(always)]
+    fn periods(&self) -> usize {
+        self.cmd_raw_m.len().min(self.cmd_nc_m.len())
+    }
+    #[inline(always)]
+    fn at(&self, j: usize) -> LoopInput {
+        LoopInput {
+            t_s: (self.k0 + j as u64) as f64 * self.t3_s,
+            cmd_raw_m: self.cmd_raw_m[j],
+            cmd_nc_m: self.cmd_nc_m[j],
+            acc_cmd_mps2: self.acc_cmd_mps2,
+            ext_force_n: 0.0,
+        }
+    }
+}
+
 /// One trace row of an axis: the plant as the sensors saw it at the start of the period, and
 /// what the amplifier did during it.
 #[derive(Debug, Clone, Copy, Default)]
@@ -193,22 +246,22 @@ impl AxisLoop {
     /// compiler can keep the loop's state in registers for, with the plain/full choice made
     /// once: the machine runs each axis through its T2 period this way.
     #[inline]
-    pub fn run(&mut self, inputs: &[LoopInput], sink: impl FnMut(usize, &AxisLoop)) {
+    pub fn run<I: LoopInputs + ?Sized>(&mut self, inputs: &I, sink: impl FnMut(usize, &AxisLoop)) {
         if self.is_plain() {
-            self.run_with::<false>(inputs, sink);
+            self.run_with::<false, I>(inputs, sink);
         } else {
-            self.run_with::<true>(inputs, sink);
+            self.run_with::<true, I>(inputs, sink);
         }
     }
 
     #[inline(always)]
-    fn run_with<const FULL: bool>(
+    fn run_with<const FULL: bool, I: LoopInputs + ?Sized>(
         &mut self,
-        inputs: &[LoopInput],
+        inputs: &I,
         mut sink: impl FnMut(usize, &AxisLoop),
     ) {
-        for (j, inp) in inputs.iter().enumerate() {
-            self.step_inline::<FULL, true>(inp);
+        for j in 0..inputs.periods() {
+            self.step_inline::<FULL, true>(&inputs.at(j));
             sink(j, self);
         }
     }
@@ -217,22 +270,23 @@ impl AxisLoop {
     /// recording off): the same steps, the row written once at the end. Writing a row
     /// nobody reads is a fifth of the T3 step's stores.
     #[inline]
-    pub fn run_quiet(&mut self, inputs: &[LoopInput]) {
+    pub fn run_quiet<I: LoopInputs + ?Sized>(&mut self, inputs: &I) {
         if self.is_plain() {
-            self.run_quiet_with::<false>(inputs);
+            self.run_quiet_with::<false, I>(inputs);
         } else {
-            self.run_quiet_with::<true>(inputs);
+            self.run_quiet_with::<true, I>(inputs);
         }
     }
 
     #[inline(always)]
-    fn run_quiet_with<const FULL: bool>(&mut self, inputs: &[LoopInput]) {
-        if let Some((last, rest)) = inputs.split_last() {
-            for inp in rest {
-                self.step_inline::<FULL, false>(inp);
-            }
-            self.step_inline::<FULL, true>(last);
+    fn run_quiet_with<const FULL: bool, I: LoopInputs + ?Sized>(&mut self, inputs: &I) {
+        let Some(last) = inputs.periods().checked_sub(1) else {
+            return;
+        };
+        for j in 0..last {
+            self.step_inline::<FULL, false>(&inputs.at(j));
         }
+        self.step_inline::<FULL, true>(&inputs.at(last));
     }
 
     /// The trace row of the latest period.

@@ -35,7 +35,7 @@ pub struct Outcome {
     pub hidden: Vec<String>,
     /// Whether a channel was logged off its instant.
     pub skewed: bool,
-    /// The diagnosis's verdict (`none` or the selected effects joined by `+`).
+    /// The diagnosis's verdict: the first effect selected, or `none`.
     pub verdict: String,
     /// The selected effects, in order.
     pub selected: Vec<String>,
@@ -94,9 +94,23 @@ fn prepare_own(seed: u64, i: usize, duration_s: f64) -> Result<Prepared, Diagnos
 
 fn prepare_independent(spec: &indep::CaseSpec) -> Result<Prepared, DiagnoseError> {
     let c = indep::generate(spec).map_err(|e| DiagnoseError::Input(e.to_string()))?;
+    // The case goes through the files `gen-cases` writes and `diagnose` reads (RON preset,
+    // CSV record), in memory: the figures are those of a user running the command on them.
     let file = format!("{}.csv", c.name);
-    let axis = diagnose::pick_axis(&c.trace, &file, &c.preset, None)?;
-    let record = Record::for_preset(&c.trace, &file, &c.preset, &axis)?;
+    let ron_file = format!("{}.ron", c.name);
+    let input = |e: String| DiagnoseError::Input(e);
+    let preset = crate::preset::Preset::from_ron(
+        &c.preset.to_ron().map_err(|e| input(e.to_string()))?,
+        &ron_file,
+    )
+    .map_err(|e| input(e.to_string()))?;
+    let mut csv = Vec::new();
+    c.trace
+        .write_csv_to(&mut csv)
+        .map_err(|e| input(format!("{file}: {e}")))?;
+    let trace = diagnose::read_record_bytes(&csv, &file, &preset, None)?;
+    let axis = diagnose::pick_axis(&trace, &file, &preset, None)?;
+    let record = Record::for_preset(&trace, &file, &preset, &axis)?;
     let truth_params = c
         .truth
         .effects
@@ -117,7 +131,7 @@ fn prepare_independent(spec: &indep::CaseSpec) -> Result<Prepared, DiagnoseError
         .join(" ");
     Ok(Prepared {
         name: c.name.clone(),
-        preset: c.preset,
+        preset,
         record,
         hidden: c.truth.effects.iter().map(|e| e.name.to_owned()).collect(),
         skewed: c.kind.skewed,
@@ -241,7 +255,7 @@ pub fn run(
 /// One case as a line of the evaluation log.
 pub fn case_line(o: &Outcome) -> String {
     format!(
-        "{:<10} hidden={:<44}{} verdict={:<34} shrink={:>5.1}% ranked {} | {}",
+        "{:<10} hidden={:<44}{} verdict={:<34} selected={:<44} shrink={:>5.1}% ranked {} | {}",
         o.name,
         if o.hidden.is_empty() {
             "none".to_owned()
@@ -250,6 +264,11 @@ pub fn case_line(o: &Outcome) -> String {
         },
         if o.skewed { " (skewed)" } else { "" },
         o.verdict,
+        if o.selected.is_empty() {
+            "none".to_owned()
+        } else {
+            o.selected.join("+")
+        },
         o.shrink * 100.0,
         o.ranked.join(" "),
         o.truth_params

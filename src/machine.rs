@@ -12,7 +12,7 @@
 //! - the trace records the sample.
 
 use crate::comp::{CompStack, PosCompCtx, ServoComp};
-use crate::drive::{AxisLoop, LoopInput, Sample, SegmentAcc};
+use crate::drive::{AxisLoop, LoopInput, Sample, SegmentAcc, T2Block};
 use crate::nc::Channel;
 use crate::nc::program::{self, ProgramError};
 use crate::plant::{Beam, Start};
@@ -213,8 +213,6 @@ pub struct Machine {
     comp_fb: Vec<f64>,
     comp_temp: Vec<f64>,
     x_pos: Vec<f64>,
-    /// One axis's loop inputs for a T2 period ([`Machine::run_block`]).
-    block_in: Vec<LoopInput>,
     /// The recorded trace (empty while recording is off).
     pub trace: Trace,
     rec: Option<Recorder>,
@@ -294,7 +292,6 @@ impl Machine {
             comp_fb: vec![0.0; n_ax],
             comp_temp: vec![0.0; n_ax],
             x_pos: vec![0.0; n_ax],
-            block_in: vec![LoopInput::default(); n23 as usize],
             trace: Trace::new(),
             rec: None,
             bulk: false,
@@ -689,28 +686,24 @@ impl Machine {
             self.flush_rows();
         }
         let t3 = self.t3_s;
-        let inputs = &mut self.block_in;
         for (i, a) in self.axes.iter_mut().enumerate() {
-            let acc = a.seg.acc_mps2();
-            for (j, inp) in inputs[..len].iter_mut().enumerate() {
-                *inp = LoopInput {
-                    t_s: (k0 + j as u64) as f64 * t3,
-                    cmd_raw_m: a.buf_raw[j],
-                    cmd_nc_m: a.buf_comp[j],
-                    acc_cmd_mps2: acc,
-                    ext_force_n: 0.0,
-                };
-            }
+            let block = T2Block {
+                k0,
+                t3_s: t3,
+                cmd_raw_m: &a.buf_raw[..len],
+                cmd_nc_m: &a.buf_comp[..len],
+                acc_cmd_mps2: a.seg.acc_mps2(),
+            };
             let sag = a.sag_m;
             match &mut self.rec {
-                None => a.axis_loop.run_quiet(&inputs[..len]),
+                None => a.axis_loop.run_quiet(&block),
                 Some(rec) => {
                     let (every, cap, first) = (u64::from(rec.every), rec.cap, rec.staged);
                     let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);
                     let stage = &mut rec.stage;
                     let mut r = first;
                     a.axis_loop.run(
-                        &inputs[..len],
+                        &block,
                         #[inline(always)]
                         |j, l| {
                             if !(k0 + j as u64).is_multiple_of(every) {

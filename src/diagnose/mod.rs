@@ -106,13 +106,33 @@ pub fn read_record(
     preset: &Preset,
     map: Option<&str>,
 ) -> Result<Trace, DiagnoseError> {
+    read_record_with(preset, map, |m| Trace::read_csv(path, m))
+}
+
+/// [`read_record`] on CSV bytes already in memory (`file` names them in errors): the
+/// evaluation reads its generated records this way, through the same parser and mapping
+/// as a user's file.
+pub fn read_record_bytes(
+    bytes: &[u8],
+    file: &str,
+    preset: &Preset,
+    map: Option<&str>,
+) -> Result<Trace, DiagnoseError> {
+    read_record_with(preset, map, |m| Trace::from_csv_bytes(bytes, file, m))
+}
+
+fn read_record_with(
+    preset: &Preset,
+    map: Option<&str>,
+    read: impl Fn(Option<&Mapping>) -> Result<Trace, crate::trace::TraceError>,
+) -> Result<Trace, DiagnoseError> {
     let text = map.or(preset.diagnose.mapping.as_deref());
     let mapping = text.map(Mapping::parse).transpose()?;
     // A preset's default mapping only applies to records in that foreign layout; a record
     // already in TRACE_FORMAT is read as it is.
-    match Trace::read_csv(path, mapping.as_ref()) {
+    match read(mapping.as_ref()) {
         Ok(t) => Ok(t),
-        Err(e) if map.is_none() && mapping.is_some() => match Trace::read_csv(path, None) {
+        Err(e) if map.is_none() && mapping.is_some() => match read(None) {
             Ok(t) => Ok(t),
             Err(_) => Err(e.into()),
         },

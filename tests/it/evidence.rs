@@ -3,7 +3,7 @@
 
 use axisbench::diagnose::evidence::{
     self, Burst, Periodic, WaveShape, bursts, drift, grid, lag, periodic_in_position,
-    periodic_in_time, regress, resonance, steps, tone,
+    periodic_in_time, regress, resonance, ringing, steps, tone,
 };
 use std::f64::consts::{PI, TAU};
 
@@ -587,4 +587,75 @@ proptest::proptest! {
             proptest::prop_assert!(r.coef.iter().all(|c| c.is_finite()), "{r:?}");
         }
     }
+}
+
+/// A trapezoid-like acceleration: ±1 m/s² plateaus switching every 400 ms, with rests.
+fn acc_steps(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|k| match (k / 400) % 4 {
+            0 => 1.0,
+            2 => -1.0,
+            _ => 0.0,
+        })
+        .collect()
+}
+
+/// The force residual a payload on a spring leaves: after each acceleration step Δa, a
+/// damped swing −A·Δa·e^(−t/τ)·sin(2π t/T) (a dip, then an overshoot), in noise.
+#[test]
+fn evidence_ringing_after_acceleration_steps() {
+    let n = 40_000;
+    let acc = acc_steps(n);
+    let (amp_n, period_s, tau_s) = (0.8, 0.05, 0.03);
+    for seed in 60..63 {
+        let mut y = Rng::new(seed).noise(n, 0.4);
+        for e in 1..n {
+            let d = acc[e] - acc[e - 1];
+            if d != 0.0 {
+                for (j, yj) in y[e..].iter_mut().take(150).enumerate() {
+                    let t = j as f64 * 1e-3;
+                    *yj -= amp_n * d * (-t / tau_s).exp() * (TAU * t / period_s).sin();
+                }
+            }
+        }
+        let r = ringing(&y, &acc, 1e-3, 0.08).expect("steps");
+        assert_eq!(r.events, 99, "one per switch of the plateaus: {r:?}");
+        // The dip of the swing sits at about a quarter period, the overshoot at three.
+        assert!((r.dip_s - 0.0125).abs() <= 0.005, "seed {seed}: {r:?}");
+        assert!((r.rise_s - 0.0375).abs() <= 0.01, "seed {seed}: {r:?}");
+        assert!(-r.dip_t > 10.0 && r.rise_t > 4.0, "seed {seed}: {r:?}");
+        // −0.8·e^(−12.5/30)·1 = −0.53 N and 0.8·e^(−37.5/30) = 0.23 N, less the noise.
+        assert!(
+            (r.dip + 0.53).abs() < 0.12 && (r.rise - 0.23).abs() < 0.1,
+            "seed {seed}: {r:?}"
+        );
+    }
+}
+
+/// Noise alone, or a step response without a swing (a mis-set mass: a force step of the
+/// acceleration's size), gives no dip followed by an overshoot of any significance.
+#[test]
+fn evidence_ringing_not_in_noise_nor_in_a_plain_step() {
+    let n = 40_000;
+    let acc = acc_steps(n);
+    for seed in 64..67 {
+        let y = Rng::new(seed).noise(n, 0.4);
+        let r = ringing(&y, &acc, 1e-3, 0.08).expect("steps");
+        assert!(
+            -r.dip_t < 5.0 && r.rise_t < 5.0,
+            "noise, seed {seed}: {r:?}"
+        );
+        let mut rng = Rng::new(seed + 10);
+        let step: Vec<f64> = acc.iter().map(|a| -3.0 * a + 0.4 * rng.gauss()).collect();
+        let r = ringing(&step, &acc, 1e-3, 0.08).expect("steps");
+        assert!(r.rise_t < 5.0, "plain step, seed {seed}: {r:?}");
+    }
+    assert!(
+        ringing(&[0.0; 500], &[0.0; 500], 1e-3, 0.08).is_none(),
+        "no steps"
+    );
+    assert!(
+        ringing(&[0.0; 10], &[0.0; 9], 1e-3, 0.08).is_none(),
+        "lengths differ"
+    );
 }

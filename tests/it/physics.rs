@@ -456,7 +456,7 @@ fn the_plain_step_computes_what_the_full_step_computes() {
         "default.ron's X axis should be plain"
     );
     let (mut a_rows, mut b_rows) = (Vec::new(), Vec::new());
-    plain.run(&inputs, |_, l| {
+    plain.run(inputs.as_slice(), |_, l| {
         let s = l.sample();
         a_rows.push([
             s.plant.pos_m,
@@ -465,7 +465,7 @@ fn the_plain_step_computes_what_the_full_step_computes() {
             s.plant.friction_n,
         ])
     });
-    full.run(&inputs, |_, l| {
+    full.run(inputs.as_slice(), |_, l| {
         let s = l.sample();
         b_rows.push([
             s.plant.pos_m,

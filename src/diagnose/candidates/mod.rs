@@ -656,7 +656,11 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         // Nor can a limit cycle's phase: the steady tone proves the play.
         true
     } else {
-        let min = if shape {
+        // A compliance found by its ringing after the acceleration steps (no spectral peak)
+        // has a weaker shape test than a resonance: it keeps the plain threshold. Set on the
+        // independent seeds 101 and 202, where clean records passed with 7–10 %.
+        let ringing_only = f.evidence.figures.contains_key("ringing_steps");
+        let min = if shape && !ringing_only {
             MIN_SHRINK_WITH_SHAPE
         } else {
             MIN_SHRINK

@@ -274,3 +274,94 @@ fn half_power_width(p: &[f64], k: usize) -> f64 {
     };
     (right - left).max(0.0)
 }
+
+/// The force residual's average answer to the command's acceleration steps: a payload on a
+/// spring lags an acceleration step, so the motor first needs less force than the rigid
+/// model says, then more as the payload catches up and swings past. Filtered by the
+/// position loop, that is a dip and an overshoot over some tens of ms, which a spectrum of
+/// the whole record (steps are rare) does not show but an average locked to the steps does.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ringing {
+    /// Steps averaged.
+    pub events: usize,
+    /// The dip: the average's most negative value per step sign, N (or y's unit) …
+    pub dip: f64,
+    /// … in standard errors of the average (the spread across steps).
+    pub dip_t: f64,
+    /// Its time after the step, s.
+    pub dip_s: f64,
+    /// The overshoot after the dip: the largest value, in y's unit …
+    pub rise: f64,
+    /// … and in standard errors.
+    pub rise_t: f64,
+    /// Its time after the step, s.
+    pub rise_s: f64,
+}
+
+/// Steps of `acc` (one sample to the next) at least this share of its largest step.
+const STEP_SHARE: f64 = 0.3;
+
+/// Averages `y` over the `window_s` after each step of `acc` (both sampled every `dt_s`),
+/// each segment signed by its step and less its mean over the 10 samples before the step.
+/// Steps closer than a window to the previous one are skipped. None with fewer than 8
+/// steps, a window under 10 samples, or `y` and `acc` of different lengths.
+pub fn ringing(y: &[f64], acc: &[f64], dt_s: f64, window_s: f64) -> Option<Ringing> {
+    const PRE: usize = 10;
+    if y.len() != acc.len() || !(positive(dt_s) && positive(window_s)) {
+        return None;
+    }
+    let win = (window_s / dt_s).round();
+    if !(10.0..=1e5).contains(&win) {
+        return None;
+    }
+    let win = win as usize;
+    let steps: Vec<f64> = acc.windows(2).map(|w| w[1] - w[0]).collect();
+    let biggest = steps.iter().fold(0.0_f64, |m, d| m.max(d.abs()));
+    if !(positive(biggest) && biggest.is_finite()) {
+        return None;
+    }
+    let mut sum = vec![0.0; win];
+    let mut sum2 = vec![0.0; win];
+    let mut events = 0usize;
+    let mut next_free = PRE;
+    for (i, d) in steps.iter().enumerate() {
+        let e = i + 1;
+        if d.abs() < STEP_SHARE * biggest || e < next_free || e + win > y.len() {
+            continue;
+        }
+        next_free = e + win;
+        let base = y[e - PRE..e].iter().sum::<f64>() / PRE as f64;
+        let sign = d.signum();
+        for (j, (s, s2)) in sum.iter_mut().zip(&mut sum2).enumerate() {
+            let v = sign * (y[e + j] - base);
+            *s += v;
+            *s2 += v * v;
+        }
+        events += 1;
+    }
+    if events < 8 {
+        return None;
+    }
+    let n = events as f64;
+    let stat: Vec<(f64, f64)> = sum
+        .iter()
+        .zip(&sum2)
+        .map(|(s, s2)| {
+            let m = s / n;
+            let var = ((s2 / n - m * m) * n / (n - 1.0)).max(0.0);
+            let se = (var / n).sqrt().max(f64::MIN_POSITIVE);
+            (m, m / se)
+        })
+        .collect();
+    let k_dip = (0..win).min_by(|&a, &b| stat[a].1.total_cmp(&stat[b].1))?;
+    let k_rise = (k_dip..win).max_by(|&a, &b| stat[a].1.total_cmp(&stat[b].1))?;
+    Some(Ringing {
+        events,
+        dip: stat[k_dip].0,
+        dip_t: stat[k_dip].1,
+        dip_s: k_dip as f64 * dt_s,
+        rise: stat[k_rise].0,
+        rise_t: stat[k_rise].1,
+        rise_s: k_rise as f64 * dt_s,
+    })
+}
