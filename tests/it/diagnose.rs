@@ -499,3 +499,34 @@ fn a_soft_payload_is_found_as_compliance() {
     assert_eq!(r.verdict, "compliance", "{:#?}", r.ranking);
     assert!(r.shrink > 0.2, "shrink {}", r.shrink);
 }
+
+#[test]
+fn a_screw_growth_is_found_with_its_fixed_bearing() {
+    // Cases 44–47 of the independent seed 202: heat from speed or from friction power and
+    // copper loss, the fixed bearing at −30 mm or 280 mm, 5–20 µm of growth, on the scale.
+    // The fit starts from a regression of the position residual on the heat model's own
+    // columns, so the fixed end (which only the growth's slope along the travel shows) is
+    // recovered; from an arbitrary heat the fit slid to the bounds (−1390 … 2000 mm).
+    for (seed, formula) in [
+        (202_000_650, "speed_heat"),
+        (202_000_652, "speed_heat"),
+        (202_000_651, "dissipated_power"),
+    ] {
+        use axisbench::indep::{self, CaseSpec, EffectPick, PosSensor};
+        let pick = EffectPick::new("thermal_growth", Some(formula)).expect("known effect");
+        let mut s = CaseSpec::new("case", seed, vec![pick]);
+        s.duration_s = Some(24.0);
+        s.pos_sensor = PosSensor::LinearScale;
+        let c = indep::generate(&s).expect("case generates");
+        let truth_mm = c.truth.effects[0].params["fixed_end_mm"];
+        let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
+        let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
+        let r = run(&c.preset, &rec, None, &Options::default());
+        assert_eq!(r.verdict, "thermal_growth", "seed {seed}: {:#?}", r.ranking);
+        let got_mm = r.ranking[0].params["fixed_end_mm"];
+        assert!(
+            (got_mm - truth_mm).abs() <= 40.0,
+            "seed {seed}: fixed end {got_mm:.1} mm, true {truth_mm} mm"
+        );
+    }
+}

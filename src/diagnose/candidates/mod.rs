@@ -81,6 +81,10 @@ pub struct Evidence {
     /// Starting values for the fit, in the order of the effect's parameters.
     #[serde(skip)]
     pub hint: Vec<f64>,
+    /// Further starting values tried besides `hint` and the effect's grid (another reading
+    /// of the same signature; the fit keeps the start that ends best).
+    #[serde(skip)]
+    pub more_starts: Vec<Vec<f64>>,
 }
 
 impl Evidence {
@@ -432,7 +436,8 @@ impl Context<'_, '_> {
         };
         let rows = |th: &[f64]| Ok(Some(self.eng.lm_rows(&self.eng.sim_fit(&build(th))?)));
         let mut best: Option<lm::LmFit> = None;
-        for mut start in starts(effect, &ev.hint) {
+        let extra = ev.more_starts.iter().filter(|h| h.len() == n_e).cloned();
+        for mut start in starts(effect, &ev.hint).into_iter().chain(extra) {
             start.extend(free.iter().map(|&i| ratios0[i]));
             start.extend(sel0.iter().copied());
             let f = lm::fit(&start, &params, &rows, 0.03, 6)?;

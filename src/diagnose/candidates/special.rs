@@ -232,6 +232,7 @@ fn drift(ctx: &Context) -> Evidence {
                     100.0 * d.explained
                 ),
                 hint: vec![100.0, tau.clamp(10.0, 36_000.0), 0.0],
+                more_starts: growth_hint(ctx, tau).into_iter().collect(),
                 ..Evidence::default()
             }
             .with("drift_um", m_to_um(d.magnitude))
@@ -240,6 +241,59 @@ fn drift(ctx: &Context) -> Evidence {
         }
         _ => Evidence::absent("no slow drift in the position residual"),
     }
+}
+
+/// Time constants the screw-growth regression tries besides the drift's own, s.
+const GROWTH_TAUS_S: [f64; 4] = [30.0, 100.0, 300.0, 1000.0];
+
+/// A second start for the thermal-growth fit, from a linear regression. With the candidate's heat
+/// model (heat `q` per metre travelled, the preset's heat loss, time constant τ), the
+/// screw's temperature rise is q·h(t), h' = |v|/C − h/τ (C = loss·τ), and the growth at
+/// position x is α·q·h(t)·(x − x₀): linear in q·α and q·α·x₀ for a given τ. Regressing
+/// the position residual on h·x and h (and a constant) for a few τ gives q, τ and x₀ where
+/// the nonlinear fit, started at an arbitrary heat, can slide to q = 0 (where x₀ no longer
+/// matters) or along the valley in which q and x₀ trade off. None when no τ gives a
+/// positive heat.
+fn growth_hint(ctx: &Context, tau_drift_s: f64) -> Option<Vec<f64>> {
+    let th = &ctx.base.model.axis.screw_thermal;
+    let (alpha, loss) = (th.alpha_per_k, th.loss_w_per_k);
+    if !(alpha > 0.0 && loss > 0.0) {
+        return None;
+    }
+    let s = ctx.sig;
+    let dt = ctx.eng.split.main.t3_s;
+    let ones = vec![1.0; s.r_pos.len()];
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    for tau in std::iter::once(tau_drift_s.clamp(10.0, 36_000.0)).chain(GROWTH_TAUS_S) {
+        let c = loss * tau;
+        let mut h = 0.0;
+        let hs: Vec<f64> = s
+            .vel_mps
+            .iter()
+            .map(|v| {
+                let now = h;
+                h += dt * (v.abs() / c - h / tau);
+                now
+            })
+            .collect();
+        let hx: Vec<f64> = hs.iter().zip(&s.pos_m).map(|(h, x)| h * x).collect();
+        let Some(r) = evidence::regress(&[&hx, &hs, &ones], &s.r_pos, s.corr_len) else {
+            continue;
+        };
+        let (a, b) = (r.coef[0], r.coef[1]);
+        let heat = a / alpha;
+        if !(heat > 0.0 && heat.is_finite() && a.abs() > 0.0) {
+            continue;
+        }
+        let x0_mm = m_to_mm(-b / a);
+        if best.as_ref().is_none_or(|(e, _)| r.explained > *e) {
+            best = Some((
+                r.explained,
+                vec![heat.min(1e5), tau, x0_mm.clamp(-2000.0, 2000.0)],
+            ));
+        }
+    }
+    best.map(|(_, h)| h)
 }
 
 fn beam(ctx: &Context) -> Evidence {
