@@ -309,14 +309,25 @@ fn joint_refit(
     })
 }
 
+thread_local! {
+    /// The case a `AXB_TRACE` line belongs to (set by the evaluation's worker thread).
+    static TRACE_LABEL: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
+}
+
+/// Names the record this thread diagnoses next, for the `AXB_TRACE` debugging lines.
+pub fn set_trace_label(label: &str) {
+    TRACE_LABEL.with(|l| *l.borrow_mut() = label.to_owned());
+}
+
 fn trace_round(k: usize, r: &[(Fitted, Scores)]) {
     let Some(path) = std::env::var_os("AXB_TRACE") else {
         return;
     };
+    let label = TRACE_LABEL.with(|l| l.borrow().clone());
     let mut out = String::new();
     for (f, s) in r {
         out += &format!(
-            "round {k} {:<22} shrink {:6.3} pos {:6.3} force {:6.3} score {:6.3} sig {} ev {} | {} | {}",
+            "{label} round {k} {:<22} shrink {:6.3} pos {:6.3} force {:6.3} score {:6.3} sig {} ev {} | {} | {}",
             f.effect.name(),
             s.shrink,
             s.shrink_pos,
