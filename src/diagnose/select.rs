@@ -53,6 +53,7 @@ pub fn run(
         cal,
         ratios: &ratios0,
         sig: &sig,
+        play_found: false,
     };
     let ranking = candidates::fit_all(&ctx, effects)?.ranked;
     trace_round(0, &ranking);
@@ -108,6 +109,9 @@ pub fn run(
             cal,
             ratios: &ratios,
             sig: &sig,
+            play_found: selected
+                .iter()
+                .any(|(f, _)| matches!(f.effect, Effect::Backlash | Effect::BacklashAsymmetry)),
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
         trace_round(selected.len(), &round);

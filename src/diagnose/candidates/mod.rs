@@ -303,6 +303,9 @@ pub struct Context<'c, 'a> {
     pub ratios: &'c [f64],
     /// The measured signals.
     pub sig: &'c Signals,
+    /// Whether play (backlash, either kind) is selected already, modelled or proven by its
+    /// signature alone (see [`FORCE_SHARE`]).
+    pub play_found: bool,
 }
 
 impl Context<'_, '_> {
@@ -641,7 +644,10 @@ fn weak_but_large(f: &Fitted, s: &Scores, fit_improved: bool) -> bool {
 /// and leaves the force alone is standing in for a loop-dynamics mismatch (gains, a lag, a
 /// channel skew), not a force. Set on the independent seeds 1, 101 and 202 (clean records
 /// flagged viscous friction with 47–66 % position and −0.1–15 % force shrink; true friction
-/// singles kept ≥ 0.7× the position shrink on the force).
+/// singles kept ≥ 0.7× the position shrink on the force). Not applied once play is in the
+/// model: a friction force then decides where in the gap the drive sits, which moves the
+/// position directly (two-effect records with backlash, seeds 1, 101 and 606, lost their
+/// friction to it).
 const FORCE_SHARE: f64 = 0.5;
 
 /// Whether `e` is a force effect whose held-out force shrink falls short of [`FORCE_SHARE`]
@@ -737,7 +743,7 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         };
         f.evidence.pass && (s.score >= min || lead_in_position(f, &s, shape)) && fit_a < fit_b
     };
-    if s.significant && force_shows_less(f.effect, &s) {
+    if s.significant && !ctx.play_found && force_shows_less(f.effect, &s) {
         s.significant = false;
     }
     if let Some(share) = hunting {
