@@ -650,6 +650,13 @@ fn weak_but_large(f: &Fitted, s: &Scores, fit_improved: bool) -> bool {
 /// friction to it).
 const FORCE_SHARE: f64 = 0.5;
 
+/// A payload on a spring pushes back on the drive, so a compliance the record holds also
+/// changes the force the motor needs. A compliance candidate must take at least this share
+/// of the held-out force residual away when a force is logged. Set on the independent seeds
+/// 1, 101 and 202: four clean records passed with 35–79 % position shrink and −0.4–1.5 %
+/// force shrink; of the true compliances, one skewed single (−2.6 %) falls below.
+const COMPLIANCE_FORCE_SHRINK: f64 = 0.02;
+
 /// Whether `e` is a force effect whose held-out force shrink falls short of [`FORCE_SHARE`]
 /// of its position shrink (only when a force channel is logged).
 fn force_shows_less(e: Effect, s: &Scores) -> bool {
@@ -744,6 +751,12 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         f.evidence.pass && (s.score >= min || lead_in_position(f, &s, shape)) && fit_a < fit_b
     };
     if s.significant && !ctx.play_found && force_shows_less(f.effect, &s) {
+        s.significant = false;
+    }
+    if s.significant
+        && f.effect == Effect::Compliance
+        && s.shrink_force.is_some_and(|x| x < COMPLIANCE_FORCE_SHRINK)
+    {
         s.significant = false;
     }
     if let Some(share) = hunting {
