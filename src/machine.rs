@@ -711,8 +711,7 @@ impl Machine {
                             }
                             let s = l.sample();
                             let fpt = l.force_per_torque();
-                            let vals = AxisSignal::RECORDED
-                                .map(|sig| recorded_value(sig, s, s.plant.pos_m + sag, fpt));
+                            let vals = recorded_row(s, s.plant.pos_m + sag, fpt);
                             for (c, v) in vals.into_iter().enumerate() {
                                 stage[(base + c) * cap + r] = v;
                             }
@@ -745,13 +744,21 @@ impl Machine {
             .first()
             .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
         let cap = rec.cap;
-        for k in (k0..k0 + len as u64).filter(|k| k.is_multiple_of(every)) {
-            // Read for every recorded row, as `record` does: a sparse value (a thermal
-            // measurement) shows on the first recorded row after it and is then spent.
-            let mut at = 0;
-            for (c, &cn) in self.comps.position.iter().zip(&self.comp_counts) {
-                c.values(&mut rec.comp_vals[at..at + cn]);
-                at += cn;
+        for (row, k) in (k0..k0 + len as u64)
+            .filter(|k| k.is_multiple_of(every))
+            .enumerate()
+        {
+            // The position-stage compensations step only at the T2 tick, so their values
+            // hold over the block. They are read for the first two rows, as `record` reads
+            // them for every row: a sparse value (a thermal measurement) shows on the first
+            // recorded row after it and is then spent; the second read is what the rest of
+            // the block shows.
+            if row < 2 {
+                let mut at = 0;
+                for (c, &cn) in self.comps.position.iter().zip(&self.comp_counts) {
+                    c.values(&mut rec.comp_vals[at..at + cn]);
+                    at += cn;
+                }
             }
             let (r, stage) = (rec.staged, &mut rec.stage);
             stage[r] = k as f64 * self.t3_s;
@@ -984,11 +991,8 @@ impl Machine {
         // The row is the instant t_k at the start of the step just taken.
         stage[r] = (self.k - 1) as f64 * self.t3_s;
         for (a, &base) in self.axes.iter().zip(&rec.axis_cols) {
-            // `map` over the constant list unrolls, so each column gets its expression
-            // without a jump per signal.
             let l = &a.axis_loop;
-            let vals = AxisSignal::RECORDED
-                .map(|sig| recorded_value(sig, l.sample(), a.sample_pos_m, l.force_per_torque()));
+            let vals = recorded_row(l.sample(), a.sample_pos_m, l.force_per_torque());
             for (c, v) in vals.into_iter().enumerate() {
                 stage[(base + c) * cap + r] = v;
             }
@@ -1036,10 +1040,7 @@ impl Machine {
     fn flush_rows(&mut self) {
         let Some(rec) = &mut self.rec else { return };
         let (n, cap, rows) = (rec.ncols, rec.cap, rec.staged);
-        for (c, sig) in self.trace.signals.iter_mut().enumerate().take(n) {
-            sig.data
-                .extend_from_slice(&rec.stage[c * cap..c * cap + rows]);
-        }
+        self.trace.append_staged(&rec.stage[..n * cap], cap, rows);
         rec.staged = 0;
     }
 }
@@ -1115,6 +1116,33 @@ fn new_axis(
         pos_m: pos,
         sample_pos_m: pos,
     }
+}
+
+/// An axis's trace row, in [`AxisSignal::RECORDED`] order. Each element names its signal by a
+/// constant index, so the `match` in [`recorded_value`] folds away and the row is sixteen
+/// plain expressions (a `map` over the list kept a jump table per value: a third of the cost
+/// of recording).
+#[inline(always)]
+fn recorded_row(s: &Sample, sample_pos_m: f64, fpt: f64) -> [f64; AxisSignal::RECORDED.len()] {
+    let v = |i: usize| recorded_value(AxisSignal::RECORDED[i], s, sample_pos_m, fpt);
+    [
+        v(0),
+        v(1),
+        v(2),
+        v(3),
+        v(4),
+        v(5),
+        v(6),
+        v(7),
+        v(8),
+        v(9),
+        v(10),
+        v(11),
+        v(12),
+        v(13),
+        v(14),
+        v(15),
+    ]
 }
 
 /// The value of `sig` in an axis's trace row: `s` is the row its loop handed on,

@@ -358,6 +358,25 @@ impl Trace {
             .collect()
     }
 
+    /// Appends `rows` rows from a column-major `stage` (column `c` at `c * stride`) to the
+    /// first columns, one column at a time. The rows go to fresh memory that nothing reads
+    /// soon, so where the room is already reserved they are written with non-temporal
+    /// stores: a plain store first reads each cache line it fills, and that read was a
+    /// third of the cost of a recorded step.
+    pub fn append_staged(&mut self, stage: &[f64], stride: usize, rows: usize) {
+        let n = stage.len().checked_div(stride).unwrap_or(0);
+        for (c, sig) in self.signals.iter_mut().enumerate().take(n) {
+            let src = &stage[c * stride..c * stride + rows.min(stride)];
+            extend_streaming(&mut sig.data, src);
+        }
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: a store fence has no operands; it orders the streaming stores above before
+        // any later store, as their documentation asks.
+        unsafe {
+            std::arch::x86_64::_mm_sfence();
+        }
+    }
+
     /// Drops all samples, keeping the columns (live plots reuse the buffer).
     pub fn clear(&mut self) {
         for s in &mut self.signals {
@@ -488,3 +507,38 @@ fn populate(start: usize, len: usize) {
 
 #[cfg(not(target_os = "linux"))]
 fn populate(_start: usize, _len: usize) {}
+
+/// Appends `src` to `v`, with non-temporal stores when `v` already has room for it (x86-64).
+/// The caller fences (see [`Trace::append_staged`]).
+fn extend_streaming(v: &mut Vec<f64>, src: &[f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if v.capacity() - v.len() >= src.len() {
+        use std::arch::x86_64::{_mm_loadu_pd, _mm_stream_pd};
+        let spare = &mut v.spare_capacity_mut()[..src.len()];
+        let mut i = 0;
+        // `_mm_stream_pd` wants a 16-byte aligned target; an 8-byte aligned column
+        // starts with one plain store.
+        if !(spare.as_ptr() as usize).is_multiple_of(16)
+            && let (Some(d), Some(&x)) = (spare.first_mut(), src.first())
+        {
+            d.write(x);
+            i = 1;
+        }
+        let dst = spare.as_mut_ptr().cast::<f64>();
+        while i + 2 <= src.len() {
+            // SAFETY: `i + 1 < src.len() == spare.len()`, so both the load from `src` and
+            // the 16-byte store into the spare capacity stay in bounds; `dst + i` is
+            // 16-byte aligned (checked above, and `i` moves by two f64).
+            unsafe { _mm_stream_pd(dst.add(i), _mm_loadu_pd(src.as_ptr().add(i))) };
+            i += 2;
+        }
+        if let (Some(d), Some(&x)) = (spare.get_mut(i), src.get(i)) {
+            d.write(x);
+        }
+        let len = v.len() + src.len();
+        // SAFETY: every element of the first `src.len()` spare slots was written above.
+        unsafe { v.set_len(len) };
+        return;
+    }
+    v.extend_from_slice(src);
+}

@@ -500,3 +500,39 @@ fn a_simulated_trace_reads_back_bit_for_bit() {
         }
     }
 }
+
+/// The streaming append writes exactly the staged rows, whatever the alignment of the
+/// column's end, the row count's parity, or whether the room was reserved.
+#[test]
+fn staged_rows_append_exactly_at_any_alignment() {
+    for (pre, rows, reserve) in [
+        (0, 5, true),
+        (1, 5, true),
+        (1, 4, true),
+        (3, 1, true),
+        (2, 7, false),
+    ] {
+        let mut t = Trace::new();
+        t.add_signal("a", "m");
+        t.add_signal("b", "N");
+        for i in 0..pre {
+            for s in &mut t.signals {
+                s.data.push(-(i as f64));
+            }
+        }
+        if reserve {
+            t.reserve_rows(rows);
+        }
+        let stride = 8;
+        let n = t.signals.len();
+        let stage: Vec<f64> = (0..n * stride).map(|i| i as f64 + 0.5).collect();
+        t.append_staged(&stage, stride, rows);
+        for (c, s) in t.signals.iter().enumerate() {
+            let want: Vec<f64> = (0..pre)
+                .map(|i| -(i as f64))
+                .chain((0..rows).map(|r| (c * stride + r) as f64 + 0.5))
+                .collect();
+            assert_eq!(s.data, want, "pre {pre}, rows {rows}, reserved {reserve}");
+        }
+    }
+}
