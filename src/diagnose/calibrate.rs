@@ -34,6 +34,14 @@ pub const MIN_SKEW: f64 = 0.2;
 /// shift does before a skew is called: an unmodelled friction term also moves the shifts a
 /// little, a logging skew moves one channel's whole residual.
 const MIN_SKEW_GAIN: f64 = 0.3;
+/// A common lag this close to one whole sample is read as the command logged one sample
+/// ahead of the responses, not as a command delay. The two give the same data (the
+/// responses follow the logged command one sample late either way); a log that stamps the
+/// command of the next period is a whole sample off, while a delay of the drive or a lag of
+/// the loop is any fraction of a sample (within ±0.08 of one sample: about 4 % of the
+/// independent generator's delays, drawn log-uniform over 0.2–6 samples). The report names
+/// both readings.
+const WHOLE_SAMPLE_LAG_TOL: f64 = 0.08;
 
 /// A nominal parameter the calibration re-fits, as a ratio to its nominal value.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -158,8 +166,16 @@ impl Calibration {
             .collect();
         let skew = match self.skew {
             Some(s) => format!(
-                "; {:?} channel logged {:+.2} samples off and realigned",
-                s.channel, s.samples
+                "; {:?} channel logged {:+.2} samples off and realigned{}",
+                s.channel,
+                s.samples,
+                if matches!(s.channel, Channel::Cmd)
+                    && (s.samples - 1.0).abs() < WHOLE_SAMPLE_LAG_TOL
+                {
+                    " (a one-sample command delay gives the same record)"
+                } else {
+                    ""
+                }
             ),
             None => String::new(),
         };
@@ -319,7 +335,7 @@ fn fast_part(rows: &[f64], n_pos: usize, window: usize) -> f64 {
 pub fn classify_shifts(pos: f64, force: Option<f64>) -> (Option<Skew>, f64) {
     let Some(force) = force else {
         // Position alone: a lead is a skew of the command or the position; a lag is a delay.
-        return if pos > MIN_SKEW {
+        return if pos > MIN_SKEW || (pos + 1.0).abs() < WHOLE_SAMPLE_LAG_TOL {
             (
                 Some(Skew {
                     channel: Channel::Pos,
@@ -334,7 +350,7 @@ pub fn classify_shifts(pos: f64, force: Option<f64>) -> (Option<Skew>, f64) {
     let diff = pos - force;
     if diff.abs() < MIN_SKEW {
         let common = 0.5 * (pos + force);
-        if common > MIN_SKEW {
+        if common > MIN_SKEW || (common + 1.0).abs() < WHOLE_SAMPLE_LAG_TOL {
             return (
                 Some(Skew {
                     channel: Channel::Cmd,
