@@ -666,3 +666,17 @@ fn a_friction_seen_on_the_force_alone_is_reported() {
         "viscous {v} N·s/m, hidden 107.4"
     );
 }
+
+#[test]
+fn a_growth_without_a_drift_in_time_is_found_by_its_heat_and_bearing() {
+    // Single-effect records 46 of the independent seeds 707 and 606: screw growth (12 and
+    // 14 µm at steady state, time constants 107 and 585 s). The growth changes sign with
+    // the position about its bearing, so the position residual has no slow drift in time,
+    // and the verdict was `none` (707) or a lead error (606). The heat × distance regression
+    // is now the growth's signature when it explains clearly more than a fixed slope.
+    for seed in [707, 606] {
+        let (hidden, r) = standard_case(seed, 46);
+        assert_eq!(hidden, ["thermal_growth"]);
+        assert_eq!(r.verdict, "thermal_growth", "seed {seed}: {:#?}", r.ranking);
+    }
+}
