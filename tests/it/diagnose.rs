@@ -142,11 +142,7 @@ fn emps_pulses_are_found_as_a_one_second_square_wave_without_the_pulse_column() 
         r.selected,
         r.ranking
     );
-    let d = r
-        .ranking
-        .iter()
-        .find(|e| e.effect == "external_disturbance")
-        .expect("external_disturbance ranked");
+    let d = ranked(&r, "external_disturbance");
     let period = d.params["period_s"];
     let rise = d.params["first_rise_s"];
     let duty = d.params.get("duty").copied().unwrap_or(0.5);
@@ -602,11 +598,7 @@ fn a_lead_error_under_thermal_growth_is_named_too() {
             r.selected
         );
     }
-    let lead = r
-        .ranking
-        .iter()
-        .find(|c| c.effect == "lead_error")
-        .expect("lead error ranked");
+    let lead = ranked(&r, "lead_error");
     let pitch = lead.params.get("pitch_mm").copied().unwrap_or(f64::NAN);
     assert!(
         (pitch - 2.287).abs() < 0.02,
@@ -679,4 +671,12 @@ fn a_growth_without_a_drift_in_time_is_found_by_its_heat_and_bearing() {
         assert_eq!(hidden, ["thermal_growth"]);
         assert_eq!(r.verdict, "thermal_growth", "seed {seed}: {:#?}", r.ranking);
     }
+}
+
+/// The ranking entry of `effect` in `r`.
+fn ranked<'a>(r: &'a Report, effect: &str) -> &'a axisbench::diagnose::RankEntry {
+    r.ranking
+        .iter()
+        .find(|e| e.effect == effect)
+        .unwrap_or_else(|| panic!("{effect} ranked in {:?}", r.selected))
 }
