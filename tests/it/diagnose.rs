@@ -607,17 +607,6 @@ fn a_lead_error_under_thermal_growth_is_named_too() {
 }
 
 #[test]
-fn two_force_steps_are_read_as_steps_not_as_a_square_wave() {
-    // Single-effect record 62 of the independent seed 808: the external force steps to
-    // −54.5 N at 4.73 s and to +20.2 N at 14.47 s. Its spectrum's strongest line read it as a
-    // square wave of 5.6 s, whose replay made the residual 2.6 times larger, and the
-    // verdict was `none`. The steps now compete with the wave on the information criterion.
-    let (hidden, r) = standard_case(808, 62);
-    assert_eq!(hidden, ["external_disturbance"]);
-    assert_eq!(r.verdict, "external_disturbance", "{:#?}", r.ranking);
-}
-
-#[test]
 fn a_command_logged_one_sample_ahead_is_a_skew_not_a_delay() {
     // A clean record whose command column holds each period's next command: position and
     // force follow the logged command exactly one sample late, which a one-sample command

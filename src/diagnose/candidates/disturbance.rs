@@ -184,21 +184,12 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
     let dt = ctx.eng.split.main.t3_s;
     let rem_force = s.r_force.as_ref().map(|f| unexplained(s, f));
     let rem_pos = unexplained(s, &s.r_pos);
-    let t0 = s.t_s.first().copied().unwrap_or(0.0);
-    let min_gap = ((0.5 / dt) as usize).max(4);
     if let Some(w) = periodic_wave(ctx, rem_force.as_deref(), &rem_pos) {
-        // A few level steps also leave a strong line in the spectrum (two steps 10 s apart
-        // read as a square wave of 5.6 s): of the two readings of the same residual, the
-        // one the information criterion prefers wins.
-        // Steps or bursts then compete below, as they do without a wave.
-        let y = rem_force.as_deref().unwrap_or(&rem_pos);
-        let steps = evidence::steps(y, min_gap, 10.0, 10);
-        if steps.is_empty() || !steps_beat_wave(s, y, &steps, &w.dist) {
-            let ev = wave_evidence(&w);
-            return (ev, Some(w));
-        }
+        let ev = wave_evidence(&w);
+        return (ev, Some(w));
     }
     let rem = rem_force.unwrap_or(rem_pos);
+    let t0 = s.t_s.first().copied().unwrap_or(0.0);
     let table = |dist| {
         Some(Shaped {
             dist,
@@ -206,6 +197,7 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
             peak_explained: (0.0, 0.0),
         })
     };
+    let min_gap = ((0.5 / dt) as usize).max(4);
     let steps = evidence::steps(&rem, min_gap, 10.0, 10);
     let window = ((0.02 / dt) as usize).max(4);
     let bursts = evidence::bursts(&rem, window, 10.0);
@@ -216,7 +208,25 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
     let steps_first =
         !steps.is_empty() && (!bursts_ok || steps_sse(&rem, &steps) <= bursts_sse(&rem, &bursts));
     if steps_first {
-        return steps_reading(&steps, t0, dt);
+        let mut times_s = vec![];
+        let mut levels_n = vec![];
+        let mut level = 0.0;
+        for st in &steps {
+            level -= st.jump;
+            times_s.push(t0 + st.index as f64 * dt);
+            levels_n.push(level);
+        }
+        let ev = Evidence {
+            pass: true,
+            text: format!(
+                "{} level steps in the force no state explains, up to {:.1} N",
+                steps.len(),
+                steps.iter().map(|s| s.jump.abs()).fold(0.0, f64::max)
+            ),
+            ..Evidence::default()
+        }
+        .with("steps", steps.len() as f64);
+        return (ev, table(Disturbance::Steps { times_s, levels_n }));
     }
     if !bursts_ok {
         return (
@@ -245,73 +255,6 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
         })
         .collect();
     (ev, table(Disturbance::Windows(windows)))
-}
-
-/// Level steps in the force no state explains, as a disturbance (the force opposes the
-/// residual's jumps).
-fn steps_reading(steps: &[evidence::Step], t0: f64, dt: f64) -> (Evidence, Option<Shaped>) {
-    let mut times_s = vec![];
-    let mut levels_n = vec![];
-    let mut level = 0.0;
-    for st in steps {
-        level -= st.jump;
-        times_s.push(t0 + st.index as f64 * dt);
-        levels_n.push(level);
-    }
-    let ev = Evidence {
-        pass: true,
-        text: format!(
-            "{} level steps in the force no state explains, up to {:.1} N",
-            steps.len(),
-            steps.iter().map(|s| s.jump.abs()).fold(0.0, f64::max)
-        ),
-        ..Evidence::default()
-    }
-    .with("steps", steps.len() as f64);
-    let shaped = Shaped {
-        dist: Disturbance::Steps { times_s, levels_n },
-        from_position: false,
-        peak_explained: (0.0, 0.0),
-    };
-    (ev, Some(shaped))
-}
-
-/// Whether level steps read `y` better than the periodic wave `wave` does, by the Bayesian
-/// information criterion: each shape is scaled and offset onto `y` by least squares; a
-/// wave costs five parameters (period, phase, duty, level, offset), each step two (time,
-/// level) and the offset one.
-fn steps_beat_wave(s: &Signals, y: &[f64], steps: &[evidence::Step], wave: &Disturbance) -> bool {
-    let n = y.len().min(s.t_s.len());
-    if n < 16 {
-        return false;
-    }
-    let mut level = 0.0;
-    let mut next = 0;
-    let step_shape: Vec<f64> = (0..n)
-        .map(|k| {
-            while next < steps.len() && steps[next].index <= k {
-                level += steps[next].jump;
-                next += 1;
-            }
-            level
-        })
-        .collect();
-    let wave_shape: Vec<f64> = s.t_s[..n].iter().map(|&t| wave.force_at(t)).collect();
-    let sse = |shape: &[f64]| -> f64 {
-        let ones = vec![1.0; n];
-        let cols: Vec<&[f64]> = vec![shape, &ones];
-        match evidence::regress(&cols, &y[..n], 1.0) {
-            Some(r) => y[..n]
-                .iter()
-                .enumerate()
-                .map(|(k, v)| (v - r.coef[0] * shape[k] - r.coef[1]).powi(2))
-                .sum(),
-            None => f64::INFINITY,
-        }
-    };
-    let nf = n as f64;
-    let bic = |sse: f64, k: f64| nf * (sse / nf).max(1e-300).ln() + k * nf.ln();
-    bic(sse(&step_shape), 2.0 * steps.len() as f64 + 1.0) < bic(sse(&wave_shape), 5.0)
 }
 
 /// What a level-step reading leaves of `y`: y minus the level the steps reach (0 before the
