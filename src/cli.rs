@@ -243,7 +243,7 @@ pub enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Seconds of motion per case.
-        #[arg(long, default_value_t = 24.0)]
+        #[arg(long, default_value_t = axisbench::indep::STANDARD_DURATION_S)]
         duration: f64,
         /// Print one line per case.
         #[arg(long)]
@@ -254,15 +254,16 @@ pub enum Command {
     },
     /// Write the independent generator's check cases (records of a second simulator with
     /// known hidden effects) to DIR: <name>.csv, <name>.ron (nominal preset), truth.json.
+    /// The same records `diagnose-eval --seed N` scores (same seed, same duration).
     GenCases {
         /// Output folder (created if missing).
         #[arg(long)]
         out: PathBuf,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Seconds per case, 1–3600 (default: drawn per case in 30–60 s).
-        #[arg(long)]
-        duration: Option<f64>,
+        /// Seconds of motion per case, 1–3600 (the same default as diagnose-eval's).
+        #[arg(long, default_value_t = axisbench::indep::STANDARD_DURATION_S)]
+        duration: f64,
         /// Only these kinds (comma-separated): clean, single, pair, clean_skew,
         /// single_skew, pair_skew.
         #[arg(long, value_delimiter = ',')]
@@ -464,17 +465,10 @@ fn bench_cmd(cmd: Command) -> Result<()> {
 }
 
 /// `gen-cases`: the independent generator's standard set, filtered by kind, on disk.
-fn gen_cases(
-    out: &std::path::Path,
-    seed: u64,
-    duration: Option<f64>,
-    kinds: &[String],
-) -> Result<()> {
+fn gen_cases(out: &std::path::Path, seed: u64, duration: f64, kinds: &[String]) -> Result<()> {
     use axisbench::indep::{self, CaseKind};
-    if let Some(d) = duration
-        && !(d.is_finite() && (1.0..=3600.0).contains(&d))
-    {
-        bail!("--duration {d}: must be a number of seconds in 1…3600");
+    if !(duration.is_finite() && (1.0..=3600.0).contains(&duration)) {
+        bail!("--duration {duration}: must be a number of seconds in 1…3600");
     }
     let mut want = Vec::new();
     for k in kinds {
@@ -486,22 +480,18 @@ fn gen_cases(
             ),
         }
     }
-    let mut specs = indep::standard_set(seed, duration.unwrap_or(45.0));
+    let mut specs = indep::standard_set(seed, duration);
     specs.retain(|s| want.is_empty() || want.contains(&CaseKind::of(s)));
-    for s in specs.iter_mut().filter(|_| duration.is_none()) {
-        s.duration_s = None;
-    }
     let t0 = std::time::Instant::now();
-    let mut cases = Vec::with_capacity(specs.len());
-    for (i, s) in specs.iter().enumerate() {
-        eprint!("\r[{}/{}] {:<16}", i + 1, specs.len(), s.name);
-        cases.push(indep::generate(s).with_context(|| format!("generating {}", s.name))?);
-    }
+    let n = specs.len();
+    let files = indep::write_cases(out, &specs, &mut |i, name| {
+        eprint!("\r[{}/{n}] {name:<16}", i + 1);
+    });
     eprintln!();
-    let files = indep::write_cases(out, &cases)?;
+    let files = files.with_context(|| format!("writing the cases to {}", out.display()))?;
     say!(
         "{} cases ({} files) written to {} in {:.1} s; the truths are in truth.json",
-        cases.len(),
+        n,
         files.len(),
         out.display(),
         t0.elapsed().as_secs_f64()

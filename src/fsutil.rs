@@ -257,14 +257,29 @@ fn restore(dir: &Path, stage: &Path, moved: &[Moved]) -> Result<(), FsError> {
 /// removed, no temporary left behind). Names must be plain file names. Returns the paths
 /// written, in order.
 pub fn write_all_atomic(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<Vec<PathBuf>, FsError> {
-    for (name, _) in files {
+    let names: Vec<String> = files.iter().map(|(n, _)| n.clone()).collect();
+    write_all_atomic_with(dir, &names, &mut |i, w| match files.get(i) {
+        Some((_, bytes)) => w.write_all(bytes),
+        None => Ok(()),
+    })
+}
+
+/// [`write_all_atomic`] for a set too large to hold in memory at once: `fill(i, w)` writes
+/// the contents of `names[i]` into `w`, once per file, in order (a writer that fails
+/// rolls the whole set back like any other error; its message names the file).
+pub fn write_all_atomic_with(
+    dir: &Path,
+    names: &[String],
+    fill: &mut dyn FnMut(usize, &mut dyn Write) -> std::io::Result<()>,
+) -> Result<Vec<PathBuf>, FsError> {
+    for name in names {
         check_plain_name(dir, name)?;
     }
     let created = create_dirs(dir)?;
     let result = (|| {
         clean_stale(dir);
-        preflight(dir, files)?;
-        commit_staged(dir, files)
+        preflight(dir, names)?;
+        commit_staged(dir, names, fill)
     })();
     if result.is_err() {
         for d in created.iter().rev() {
@@ -323,8 +338,8 @@ fn create_dirs(dir: &Path) -> Result<Vec<PathBuf>, FsError> {
 
 /// Refuses before anything is written when a target name is taken by something that is not
 /// a file (a folder, a socket …): a rename could not replace it.
-fn preflight(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<(), FsError> {
-    for (name, _) in files {
+fn preflight(dir: &Path, names: &[String]) -> Result<(), FsError> {
+    for name in names {
         let p = dir.join(name);
         if let Ok(m) = std::fs::metadata(&p)
             && !m.is_file()
@@ -343,14 +358,19 @@ fn preflight(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<(), FsError> {
 /// Stages, commits and cleans up; the staging folder is gone on every path out, except
 /// when a rollback itself failed (then it holds the only copy of the previous files, and
 /// the error says where).
-fn commit_staged(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<Vec<PathBuf>, FsError> {
+fn commit_staged(
+    dir: &Path,
+    names: &[String],
+    fill: &mut dyn FnMut(usize, &mut dyn Write) -> std::io::Result<()>,
+) -> Result<Vec<PathBuf>, FsError> {
     let stage = dir.join(format!(
         "{STAGE_PREFIX}{}.{}",
         std::process::id(),
         SEQ.fetch_add(1, Ordering::Relaxed)
     ));
     std::fs::create_dir(&stage).map_err(|e| FsError::io("write into", dir, &e))?;
-    let result = stage_files(&stage, files).and_then(|()| move_into_place(dir, &stage, files));
+    let result =
+        stage_files(&stage, names, fill).and_then(|()| move_into_place(dir, &stage, names));
     match &result {
         Err(e) if e.op == "restore" => {}
         _ => {
@@ -360,13 +380,18 @@ fn commit_staged(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<Vec<PathBuf>
     result
 }
 
-fn stage_files(stage: &Path, files: &[(String, Vec<u8>)]) -> Result<(), FsError> {
-    for (name, bytes) in files {
+fn stage_files(
+    stage: &Path,
+    names: &[String],
+    fill: &mut dyn FnMut(usize, &mut dyn Write) -> std::io::Result<()>,
+) -> Result<(), FsError> {
+    for (i, name) in names.iter().enumerate() {
         let p = stage.join(name);
-        let w = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&p)?;
-            f.write_all(bytes)?;
-            f.sync_all()
+        let mut w = || -> std::io::Result<()> {
+            let mut f = BufWriter::new(std::fs::File::create(&p)?);
+            fill(i, &mut f)?;
+            f.flush()?;
+            f.get_ref().sync_all()
         };
         // The error names the final path: the staging folder is an implementation detail.
         w().map_err(|e| FsError::io("write", &stage.parent().unwrap_or(stage).join(name), &e))?;
@@ -377,16 +402,12 @@ fn stage_files(stage: &Path, files: &[(String, Vec<u8>)]) -> Result<(), FsError>
 
 /// Backs up the previous versions, journals the commit, renames every staged file into
 /// place, and rolls back on the first failure.
-fn move_into_place(
-    dir: &Path,
-    stage: &Path,
-    files: &[(String, Vec<u8>)],
-) -> Result<Vec<PathBuf>, FsError> {
+fn move_into_place(dir: &Path, stage: &Path, names: &[String]) -> Result<Vec<PathBuf>, FsError> {
     let backups = stage.join(BACKUP_DIR);
     std::fs::create_dir(&backups).map_err(|e| FsError::io("write into", dir, &e))?;
     let mut moved = Vec::new();
     let mut journal = String::new();
-    for (name, _) in files {
+    for name in names {
         let to = dir.join(name);
         let had_old = to.exists();
         if had_old {
@@ -406,7 +427,7 @@ fn move_into_place(
         .map_err(|e| FsError::io("write into", dir, &e))?;
     let mut written = Vec::new();
     let pause = commit_pause();
-    for (k, (name, _)) in files.iter().enumerate() {
+    for (k, name) in names.iter().enumerate() {
         let to = dir.join(name);
         if let Err(e) = rename_into(&stage.join(name), &to, k) {
             let err = FsError::io("replace", &to, &e);

@@ -2,9 +2,10 @@
 //! truth in one JSON file (written here by hand: the generator depends on no serializer).
 
 use std::fmt::Write as _;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use super::{Case, IndepError, TrueEffect};
+use super::{Case, CaseSpec, IndepError, TrueEffect};
 
 /// A JSON string literal.
 fn text(s: &str) -> String {
@@ -70,35 +71,51 @@ pub fn case_json(c: &Case) -> String {
     )
 }
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> IndepError + '_ {
-    move |source| IndepError::Io {
-        path: path.display().to_string(),
-        source,
-    }
-}
-
 /// See [`super::write_cases`].
-pub fn write_cases(dir: &Path, cases: &[Case]) -> Result<Vec<PathBuf>, IndepError> {
-    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
-    let mut written = Vec::new();
-    for c in cases {
-        let csv = dir.join(format!("{}.csv", c.name));
-        c.trace.write_csv(&csv)?;
-        written.push(csv);
-        let ron = dir.join(format!("{}.ron", c.name));
-        std::fs::write(&ron, c.preset.to_ron()?).map_err(io_err(&ron))?;
-        written.push(ron);
-    }
-    let body: Vec<String> = cases
+pub fn write_cases(
+    dir: &Path,
+    specs: &[CaseSpec],
+    progress: &mut dyn FnMut(usize, &str),
+) -> Result<Vec<PathBuf>, IndepError> {
+    let mut names: Vec<String> = specs
         .iter()
-        .map(|c| format!("  {}", case_json(c)))
+        .flat_map(|s| [format!("{}.csv", s.name), format!("{}.ron", s.name)])
         .collect();
-    let json = format!(
-        "{{\"generator\": \"axisbench indep\", \"cases\": [\n{}\n]}}\n",
-        body.join(",\n")
-    );
-    let path = dir.join("truth.json");
-    std::fs::write(&path, json).map_err(io_err(&path))?;
-    written.push(path);
-    Ok(written)
+    names.push("truth.json".into());
+    // One case in memory at a time: generated when its record is due, its preset held for
+    // the next file, its truth kept (small) for truth.json.
+    let mut ron = String::new();
+    let mut truths: Vec<String> = Vec::with_capacity(specs.len());
+    let mut failed: Option<IndepError> = None;
+    let mut fill = |i: usize, w: &mut dyn Write| -> std::io::Result<()> {
+        let halt = |e: IndepError, failed: &mut Option<IndepError>| {
+            let text = e.to_string();
+            *failed = Some(e);
+            std::io::Error::other(text)
+        };
+        match (specs.get(i / 2), i % 2) {
+            (Some(spec), 0) => {
+                progress(i / 2, &spec.name);
+                let c = super::generate(spec).map_err(|e| halt(e, &mut failed))?;
+                ron = c.preset.to_ron().map_err(|e| halt(e.into(), &mut failed))?;
+                truths.push(format!("  {}", case_json(&c)));
+                c.trace.write_csv_to(w)
+            }
+            (Some(_), _) => w.write_all(ron.as_bytes()),
+            (None, _) => write!(
+                w,
+                "{{\"generator\": \"axisbench indep\", \"cases\": [\n{}\n]}}\n",
+                truths.join(",\n")
+            ),
+        }
+    };
+    let written = crate::fsutil::write_all_atomic_with(dir, &names, &mut fill);
+    match (written, failed) {
+        (Ok(w), _) => Ok(w),
+        (Err(_), Some(e)) => Err(e),
+        (Err(e), None) => Err(IndepError::Io {
+            path: e.path.display().to_string(),
+            source: std::io::Error::new(e.kind, format!("{}: {}", e.op, e.reason)),
+        }),
+    }
 }

@@ -539,6 +539,10 @@ fn needs_scale(names: &[&str]) -> bool {
         .any(|n| matches!(*n, "lead_error" | "thermal_growth"))
 }
 
+/// Seconds of motion per case of the standard set, unless asked otherwise: `gen-cases` and
+/// `diagnose-eval` share it, so both see the same records of a seed.
+pub const STANDARD_DURATION_S: f64 = 24.0;
+
 /// The check set: 12 clean cases (a third on the scale), 4 single cases per effect kind
 /// (formulas in turn; lead error and thermal growth on the scale, quantization on both),
 /// 12 two-effect cases, and each again with a random channel skew (same seed, name
@@ -609,8 +613,15 @@ pub fn standard_set(seed: u64, duration_s: f64) -> Vec<CaseSpec> {
     plain
 }
 
-/// Writes each case as `DIR/<name>.csv` (the record) and `DIR/<name>.ron` (the nominal
-/// preset), and all truths as `DIR/truth.json`; creates DIR. Returns the files written.
-pub fn write_cases(dir: &Path, cases: &[Case]) -> Result<Vec<PathBuf>, IndepError> {
-    io::write_cases(dir, cases)
+/// Generates each case of `specs` and writes it as `DIR/<name>.csv` (the record) and
+/// `DIR/<name>.ron` (the nominal preset), and all truths as `DIR/truth.json`; creates DIR.
+/// All or nothing: a failed case or a failed write leaves DIR as it was. One case is in
+/// memory at a time; `progress(i, name)` is called as case `i` starts. Returns the files
+/// written.
+pub fn write_cases(
+    dir: &Path,
+    specs: &[CaseSpec],
+    progress: &mut dyn FnMut(usize, &str),
+) -> Result<Vec<PathBuf>, IndepError> {
+    io::write_cases(dir, specs, progress)
 }

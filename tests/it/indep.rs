@@ -958,3 +958,55 @@ fn gen_cases_writes_cases_the_diagnosis_reads() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `gen-cases` writes, byte for byte, the records `diagnose-eval` scores for the same seed
+/// (one default duration, one case list).
+#[test]
+fn gen_cases_writes_the_records_the_eval_scores() {
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path().join("cases");
+    let o = Command::new(env!("CARGO_BIN_EXE_axisbench"))
+        .args(["gen-cases", "--seed", "5", "--kind", "clean", "--out"])
+        .arg(&dir)
+        .output()
+        .expect("runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let specs = indep::standard_set(5, indep::STANDARD_DURATION_S);
+    for i in [0, 7] {
+        let c = make(&specs[i]);
+        let mut expected = Vec::new();
+        c.trace.write_csv_to(&mut expected).expect("in memory");
+        let written = std::fs::read(dir.join(format!("{}.csv", c.name))).expect("written");
+        assert!(
+            written == expected,
+            "{}: gen-cases wrote another record than the eval's",
+            c.name
+        );
+    }
+}
+
+/// A case that cannot be generated part-way through the set leaves the folder as it was:
+/// the earlier cases' files are not left behind, the previous truth.json stays.
+#[test]
+fn gen_cases_writes_all_cases_or_none() {
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let dir = tmp_dir.path();
+    std::fs::write(dir.join("truth.json"), "previous").expect("seed file");
+    let mut specs: Vec<CaseSpec> = indep::standard_set(5, 2.0).into_iter().take(3).collect();
+    specs[2].duration_s = Some(f64::NAN);
+    let mut started = Vec::new();
+    let err = indep::write_cases(dir, &specs, &mut |i, _| started.push(i))
+        .expect_err("the third case is out of range");
+    assert_eq!(started, vec![0, 1, 2], "the first two were generated");
+    assert!(err.to_string().contains("case_002"), "{err}");
+    let mut left: Vec<String> = std::fs::read_dir(dir)
+        .expect("folder")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, vec!["truth.json".to_owned()]);
+    assert_eq!(
+        std::fs::read_to_string(dir.join("truth.json")).expect("kept"),
+        "previous"
+    );
+}
