@@ -153,6 +153,9 @@ pub struct Engine<'a> {
     /// never showed) are left out, so that they do not drown the score of an effect that is
     /// present in both. The overall before/after figures keep them.
     pub hold_mask: Vec<bool>,
+    /// Samples of the moving average the held-out residuals of slow effects are scored
+    /// through when asked (1: none).
+    pub smooth_n: usize,
     sims: AtomicUsize,
     /// Replays expected in all (for the progress bar).
     pub sims_expected: AtomicUsize,
@@ -175,6 +178,7 @@ impl<'a> Engine<'a> {
             stride: 1,
             corr_len: 1.0,
             hold_mask: vec![],
+            smooth_n: 1,
             sims: AtomicUsize::new(0),
             sims_expected: AtomicUsize::new(200),
         };
@@ -357,7 +361,29 @@ impl<'a> Engine<'a> {
 
     /// How candidate `after` changes the held-out residual of `base`. `mask` leaves out the
     /// anomalous held-out blocks (for effects that depend on the axis's state).
-    pub fn scores(&self, base: &Eval, after: &Eval, n_params: usize, mask: bool) -> Scores {
+    pub fn scores(
+        &self,
+        base: &Eval,
+        after: &Eval,
+        n_params: usize,
+        mask: bool,
+        smooth: bool,
+    ) -> Scores {
+        if smooth && self.smooth_n > 1 {
+            let sm = |e: &Eval| Eval {
+                hold_pos: moving_average(&e.hold_pos, self.smooth_n),
+                hold_force: e
+                    .hold_force
+                    .as_deref()
+                    .map(|f| moving_average(f, self.smooth_n)),
+                ..e.clone()
+            };
+            return self.scores_of(&sm(base), &sm(after), n_params, mask);
+        }
+        self.scores_of(base, after, n_params, mask)
+    }
+
+    fn scores_of(&self, base: &Eval, after: &Eval, n_params: usize, mask: bool) -> Scores {
         let hj = |e: &Eval| {
             if mask {
                 let f = e.hold_force.as_deref().map(|f| self.masked(f));
@@ -386,6 +412,23 @@ impl<'a> Engine<'a> {
             significant: false,
         }
     }
+}
+
+/// Centred moving average of `v` over `n` samples (shorter at the ends).
+pub fn moving_average(v: &[f64], n: usize) -> Vec<f64> {
+    let len = v.len();
+    let h = n / 2;
+    let mut pre = Vec::with_capacity(len + 1);
+    pre.push(0.0);
+    for x in v {
+        pre.push(pre[pre.len() - 1] + x);
+    }
+    (0..len)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(h), (i + h + 1).min(len));
+            (pre[b] - pre[a]) / (b - a) as f64
+        })
+        .collect()
 }
 
 /// `v` at fractional index `x` (linear interpolation, ends held).

@@ -530,7 +530,7 @@ fn a_screw_growth_is_found_with_its_fixed_bearing() {
 /// Diagnoses case `i` of the independent generator's standard set of `seed` (24 s records).
 fn standard_case(seed: u64, i: usize) -> (Vec<String>, Report) {
     use axisbench::indep;
-    let spec = indep::standard_set(seed, 24.0).swap_remove(i);
+    let spec = indep::standard_set(seed, indep::STANDARD_DURATION_S).swap_remove(i);
     let c = indep::generate(&spec).expect("case generates");
     let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
     let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
@@ -660,6 +660,34 @@ fn a_growth_without_a_drift_in_time_is_found_by_its_heat_and_bearing() {
         assert_eq!(hidden, ["thermal_growth"]);
         assert_eq!(r.verdict, "thermal_growth", "seed {seed}: {:#?}", r.ranking);
     }
+}
+
+#[test]
+fn a_friction_beside_a_hunting_play_is_found_through_the_tone() {
+    // Pair record 67 of the independent seed 909: a viscous friction of 330 N·s/m and a
+    // play of 11 µm. The drive hunts in the play (a 371 Hz tone of 41 N rms, 99 % of the
+    // force residual above 50 Hz); the friction's held-out shrink was 2.7 % under the tone,
+    // and only the play was named. Scored through a 20 ms moving average once the tone has
+    // proven the play, the friction takes a quarter of the residual away.
+    let (hidden, r) = standard_case(909, 67);
+    assert_eq!(hidden, ["viscous_friction", "backlash"]);
+    for e in &hidden {
+        assert!(r.selected.contains(e), "{e} not in {:?}", r.selected);
+    }
+    // Its size is not right yet, so it is not asserted: fitted on the model without the
+    // play (a modelled play adds a tone of its own), the friction reads 72 N·s/m where the
+    // record's speed term is 517 and the hidden one 330.
+    // A play alone (seed 808's single record 29, its position logged a fraction of a sample
+    // late) keeps its hunting tone out of the friction's score the other way: through the
+    // moving average a viscous term took 43 % of the position residual and made the force
+    // residual three times worse. A friction must show on the force first.
+    let (hidden, r) = standard_case(808, 76 + 29);
+    assert_eq!(hidden, ["backlash"]);
+    assert!(
+        !r.selected.iter().any(|e| e.ends_with("_friction")),
+        "{:?}",
+        r.selected
+    );
 }
 
 /// The ranking entry of `effect` in `r`.
