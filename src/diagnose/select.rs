@@ -20,6 +20,19 @@ use crate::diagnose::calibrate::MAX_RATIO_CHANGE;
 /// beside a hunting play: held-out shrink 2.7 → 24.5 % and 12 → 41.5 %).
 const SMOOTH_S: f64 = 0.02;
 
+/// Samples of [`SMOOTH_S`] at sample time `t3_s`. An effect proven by its signature alone
+/// leaves its unpredictable part (a grid's rounding, a limit cycle's tone) in every later
+/// round's residual, where it drowns what a slower effect takes away: those rounds score
+/// the slow effects through a moving average of this many samples.
+fn smooth_samples(t3_s: f64) -> usize {
+    let n = (SMOOTH_S / t3_s).round();
+    if n.is_finite() && n >= 1.0 {
+        n.min(1e6) as usize
+    } else {
+        1
+    }
+}
+
 /// What the selection found.
 pub struct Outcome {
     /// The first round's ranking (every candidate on the calibrated model).
@@ -86,16 +99,8 @@ pub fn run(
         // effect that shows only in the position (a lead error, thermal growth) is not
         // drowned by a force residual the first effect left larger.
         eng.set_norm(&base_eval);
-        // An effect proven by its signature alone leaves its unpredictable part (a grid's
-        // rounding, a limit cycle's tone) in every later round's residual, where it drowns
-        // what a slower effect takes away: those rounds score through a moving average.
         if !deferred.is_empty() {
-            let n = (SMOOTH_S / eng.split.main.t3_s).round();
-            eng.smooth_n = if n.is_finite() {
-                (n as usize).max(1)
-            } else {
-                1
-            };
+            eng.smooth_n = smooth_samples(eng.split.main.t3_s);
         }
         let eng: &Engine = eng;
         let rest: Vec<Effect> = effects
