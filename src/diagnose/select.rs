@@ -109,14 +109,7 @@ pub fn run(
             .filter(|e| !selected.iter().any(|(f, _)| f.effect == *e))
             .collect();
         let sig = Signals::new(eng, &base_eval);
-        let applied: Vec<Selected> = selected
-            .iter()
-            .filter(|(f, _)| !proven_only(f))
-            .map(|(f, _)| Selected {
-                applied: f.applied.clone(),
-                refit: f.refit,
-            })
-            .collect();
+        let applied = in_base(&selected);
         // The calibration ratios of the base: those of the last effect in it (a deferred
         // effect's fit may have moved them, but its model is not the base).
         let ratios = selected
@@ -169,6 +162,19 @@ pub fn run(
         final_ratios: j.ratios,
         final_params: j.params,
     })
+}
+
+/// The selected effects the base holds (those proven by their signature alone wait for the
+/// end, see [`proven_only`]).
+fn in_base(selected: &[(Fitted, Scores)]) -> Vec<Selected> {
+    selected
+        .iter()
+        .filter(|(f, _)| !proven_only(f))
+        .map(|(f, _)| Selected {
+            applied: f.applied.clone(),
+            refit: f.refit,
+        })
+        .collect()
 }
 
 /// Gives the selected effects that were fitted again alongside the newest one their new
