@@ -600,12 +600,15 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
     }
     let mut r = results.into_inner().unwrap_or_default();
     r.sort_by_key(|x| x.0);
+    // A candidate whose replay ran away (a spring the solver drove unstable) has no
+    // residual to rank by: it is left out, not ranked by a NaN.
     let mut ranked: Vec<(Fitted, Scores)> = r
         .into_iter()
         .map(|(_, f)| {
             let s = score(ctx, &f);
             (f, s)
         })
+        .filter(|(_, s)| s.score.is_finite() && s.shrink.is_finite())
         .collect();
     ranked.sort_by(|a, b| {
         b.1.significant
