@@ -78,17 +78,32 @@ fn t_of(r: &Regression, i: usize) -> f64 {
     }
 }
 
+/// How the lubricant film wears over short strokes, for the signature's regressor.
+#[derive(Clone, Copy)]
+enum Wear {
+    /// By the number of short strokes (e-folding over three).
+    Count,
+    /// By the distance travelled in short strokes (e-folding over this many metres).
+    Distance(f64),
+}
+
 /// The short-stroke level at every sample for a pitch `pitch_m`: each stroke between two
-/// reversals shorter than the pitch adds one, a longer one resets it.
-fn stroke_level(vel: &[f64], pos: &[f64], pitch_m: f64) -> Vec<f64> {
+/// reversals shorter than the pitch wears the film (by one stroke, or by its length), a
+/// longer one resets it.
+fn stroke_level(vel: &[f64], pos: &[f64], pitch_m: f64, wear: Wear) -> Vec<f64> {
     let mut out = Vec::with_capacity(vel.len());
     let (mut level, mut last_dir, mut rev_pos) = (0.0, 0.0, pos.first().copied().unwrap_or(0.0));
+    let (per_stroke, scale) = match wear {
+        Wear::Count => (None, 3.0),
+        Wear::Distance(l) => (Some(()), l),
+    };
     for (&v, &x) in vel.iter().zip(pos) {
         let d = dir(v);
         if d != 0.0 && d != last_dir {
             if last_dir != 0.0 {
-                level = if (x - rev_pos).abs() < pitch_m {
-                    level + 1.0
+                let stroke = (x - rev_pos).abs();
+                level = if stroke < pitch_m {
+                    level + per_stroke.map_or(1.0, |()| stroke)
                 } else {
                     0.0
                 };
@@ -96,7 +111,7 @@ fn stroke_level(vel: &[f64], pos: &[f64], pitch_m: f64) -> Vec<f64> {
             rev_pos = x;
             last_dir = d;
         }
-        out.push(d * (1.0 - (-level / 3.0f64).exp()));
+        out.push(d * (1.0 - (-level / scale).exp()));
     }
     out
 }
@@ -231,8 +246,19 @@ fn stribeck(ctx: &Context) -> Evidence {
 fn stroke(ctx: &Context) -> Evidence {
     let base = base_columns(ctx);
     let mut best: Option<(f64, f64, f64)> = None;
-    for pitch_mm in [1.0, 2.0, 4.0, 8.0, 16.0, 32.0] {
-        let lvl = stroke_level(&ctx.sig.vel_mps, &ctx.sig.pos_m, mm_to_m(pitch_mm));
+    // The film worn by the number of short strokes, or by the distance run in them (over
+    // 2, 5 or 12 mm): two readings of the same physics, the regression picks.
+    let wears = [
+        Wear::Count,
+        Wear::Distance(mm_to_m(2.0)),
+        Wear::Distance(mm_to_m(5.0)),
+        Wear::Distance(mm_to_m(12.0)),
+    ];
+    let grid = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0]
+        .into_iter()
+        .flat_map(|p| wears.iter().map(move |w| (p, *w)));
+    for (pitch_mm, wear) in grid {
+        let lvl = stroke_level(&ctx.sig.vel_mps, &ctx.sig.pos_m, mm_to_m(pitch_mm), wear);
         if lvl.iter().all(|x| *x == 0.0) {
             continue;
         }
@@ -396,12 +422,21 @@ mod tests {
                 vel.push(sign * 0.01);
             }
         }
-        let lvl = stroke_level(&vel, &pos, mm_to_m(5.0));
+        let lvl = stroke_level(&vel, &pos, mm_to_m(5.0), Wear::Count);
         let at = |mm: f64| lvl[(mm / 0.01) as usize];
         assert_eq!(at(1.0), 0.0, "first stroke: no reversal yet");
         assert!(at(4.0).abs() > 0.2, "second stroke: level 1");
         assert!(at(7.0).abs() > at(4.0).abs(), "third stroke: level 2");
         assert!(at(7.0) > 0.0 && at(4.0) < 0.0, "signed with the direction");
         assert!(at(14.0).abs() > 0.0, "the long stroke starts at level 3");
+        // Worn by distance over 3 mm: two 3 mm strokes behind it, the third stroke runs at
+        // 1 − e^(−6/3) (less the one sample each reversal is seen late).
+        let lvl = stroke_level(&vel, &pos, mm_to_m(5.0), Wear::Distance(mm_to_m(3.0)));
+        let expected = 1.0 - (-2.0f64).exp();
+        let got = lvl[700];
+        assert!(
+            (got - expected).abs() < 0.01,
+            "level {got}, expected {expected}"
+        );
     }
 }
