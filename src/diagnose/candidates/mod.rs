@@ -396,7 +396,11 @@ impl Context<'_, '_> {
                 scale: d.init.abs().max(1e-9),
             })
             .collect();
-        let joint = ev.pass;
+        // A payload on a spring bends the calibration: the mass, kp and kv ratios fitted
+        // without it took up its lag (seed 808 case_042: kp ×1.05, kv ×0.95, a 3 µm
+        // following-error residual that the compliance alone, even from its true
+        // parameters, could not touch). Its ratios are always fitted again with it.
+        let joint = ev.pass || effect == Effect::Compliance;
         let ratios0: Vec<f64> = self.ratios.to_vec();
         // A ratio that is one quantity with this effect or a selected one stays put (see
         // [`owns`]).
@@ -726,6 +730,25 @@ fn lead_beside_growth(ctx: &Context, f: &Fitted) -> bool {
             .any(|s| matches!(s.applied, Applied::Params(Effect::ThermalGrowth, _)))
 }
 
+/// A compliance whose ringing the command hardly excites (a resonance above ~100 Hz behind
+/// jerk-limited moves) shows no signature, but fitted with the calibration it takes large
+/// shares of both residuals away: the payload's lag from the position and its push from
+/// the force. Set on the independent seeds 1, 101, 202, 505, 606, 707, 808 and 909 (clean
+/// and compliance records, unskewed and skewed): the most a clean record took was 0.21 of
+/// the force (with 0.90 of the position) and, skewed, 0.24 (with 0.08); ten of the 32
+/// unskewed compliances took both shares. Only on the calibrated model alone: beside a
+/// found effect, the shares are of what that effect left (two disturbance records, seeds
+/// 808 and 909, added a compliance that way).
+const COMPLIANCE_BOTH: (f64, f64) = (0.5, 0.25);
+
+/// Whether `f` is a compliance that [`COMPLIANCE_BOTH`] lets count without a signature.
+fn compliance_in_both(f: &Fitted, s: &Scores) -> bool {
+    f.effect == Effect::Compliance
+        && s.score >= MIN_SHRINK
+        && s.shrink_pos >= COMPLIANCE_BOTH.0
+        && s.shrink_force.is_some_and(|x| x >= COMPLIANCE_BOTH.1)
+}
+
 /// Whether `e` changes the record only slowly (a force that follows the motion, a load, a
 /// drift): what a moving average keeps (see `Engine::smooth_n`). A spring, a delay, a play
 /// or a pitch act within a few samples and are scored as recorded.
@@ -806,8 +829,9 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
         } else {
             MIN_SHRINK
         };
-        f.evidence.pass
+        (f.evidence.pass
             && (s.score >= min || lead_in_position(f, &s, shape) || force_in_force(f, &s))
+            || (ctx.selected.is_empty() && compliance_in_both(f, &s)))
             && (fit_a < fit_b || lead_beside_growth(ctx, f))
     };
     // A limit cycle's tone drowns the force shrink of a play's record, unless the scores
