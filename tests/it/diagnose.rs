@@ -727,6 +727,31 @@ fn a_clean_record_whose_position_a_spring_absorbs_is_not_flagged() {
     assert_eq!(r.verdict, "none", "{:#?}", r.ranking);
 }
 
+#[test]
+fn a_stroke_friction_far_ahead_of_coulomb_counts_without_its_signature() {
+    // Single-effect record 27 of the independent seed 808: a film worn over 3–15 mm strokes.
+    // Its regression stood at 1.0 standard errors and the record was named Coulomb friction
+    // (22 % held-out score), while the stroke friction's replay scored 41 %.
+    let (hidden, r) = standard_case(808, 27);
+    assert_eq!(hidden, ["stroke_friction"]);
+    assert_eq!(r.verdict, "stroke_friction", "{:#?}", r.ranking);
+    assert!(
+        ranked(&r, "stroke_friction")
+            .note
+            .contains("held-out score")
+    );
+}
+
+#[test]
+fn a_coulomb_friction_the_stroke_model_also_fits_stays_coulomb() {
+    // Skewed record 13 of the independent seed 808 (index 76 + 13): a Coulomb friction on
+    // which the stroke friction scores 1.22× the Coulomb friction, the most of any Coulomb
+    // record seen; STROKE_OVER_BEST keeps it Coulomb.
+    let (hidden, r) = standard_case(808, 89);
+    assert_eq!(hidden, ["coulomb_friction"]);
+    assert_eq!(r.verdict, "coulomb_friction", "{:#?}", r.ranking);
+}
+
 /// The ranking entry of `effect` in `r`.
 fn ranked<'a>(r: &'a Report, effect: &str) -> &'a axisbench::diagnose::RankEntry {
     r.ranking
