@@ -538,6 +538,15 @@ fn standard_case(seed: u64, i: usize) -> (Vec<String>, Report) {
     (hidden, run(&c.preset, &rec, None, &Options::default()))
 }
 
+/// Standard case `i` of `seed`, which must hide `effect` alone, diagnosed: its report, after
+/// checking that the verdict names the effect.
+fn named_single(seed: u64, i: usize, effect: &str) -> Report {
+    let (hidden, r) = standard_case(seed, i);
+    assert_eq!(hidden, [effect], "seed {seed} case {i}");
+    assert_eq!(r.verdict, effect, "seed {seed} case {i}: {:#?}", r.ranking);
+    r
+}
+
 #[test]
 fn a_friction_that_leaves_the_force_alone_is_not_reported() {
     // Clean record 0 of the independent seed 404 (motor encoder). Its calibrated residual
@@ -638,9 +647,7 @@ fn a_friction_seen_on_the_force_alone_is_reported() {
     // 107 N·s/m. Modelled, it takes 80 % of the held-out force residual away and leaves the
     // position residual (its noise and grid) as it was, so the combined shrink read 11.5 %,
     // a penalty short of the threshold, and the verdict was `none` (FORCE_ONLY_SHRINK).
-    let (hidden, r) = standard_case(707, 20);
-    assert_eq!(hidden, ["viscous_friction"]);
-    assert_eq!(r.verdict, "viscous_friction", "{:#?}", r.ranking);
+    let r = named_single(707, 20, "viscous_friction");
     let v = &r.ranking[0].params["viscous_n_s_per_m"];
     assert!(
         (v - 107.4).abs() < 0.25 * 107.4,
@@ -697,9 +704,7 @@ fn a_stroke_friction_worn_by_distance_is_named() {
     // force on a level that counts short strokes only, 2.0 standard errors, and the record
     // was named Coulomb friction (22 % shrink) although the stroke friction's replay took
     // 77 % of the held-out residual. Worn by distance, the level stands at 4.4.
-    let (hidden, r) = standard_case(1010, 27);
-    assert_eq!(hidden, ["stroke_friction"]);
-    assert_eq!(r.verdict, "stroke_friction", "{:#?}", r.ranking);
+    named_single(1010, 27, "stroke_friction");
 }
 
 #[test]
@@ -709,9 +714,7 @@ fn a_compliance_without_ringing_is_found_with_its_calibration() {
     // following-error residual; the compliance fitted on top of those ratios took 0.3 % of
     // the position and nothing showed a signature. Fitted together with the ratios it
     // takes both channels' residuals down (COMPLIANCE_BOTH).
-    let (hidden, r) = standard_case(808, 42);
-    assert_eq!(hidden, ["compliance"]);
-    assert_eq!(r.verdict, "compliance", "{:#?}", r.ranking);
+    let r = named_single(808, 42, "compliance");
     let c = ranked(&r, "compliance");
     assert!(c.shrink_pos >= 0.5, "{c:#?}");
     assert!(c.shrink_force.is_some_and(|f| f >= 0.25), "{c:#?}");
@@ -732,9 +735,7 @@ fn a_stroke_friction_far_ahead_of_coulomb_counts_without_its_signature() {
     // Single-effect record 27 of the independent seed 808: a film worn over 3–15 mm strokes.
     // Its regression stood at 1.0 standard errors and the record was named Coulomb friction
     // (22 % held-out score), while the stroke friction's replay scored 41 %.
-    let (hidden, r) = standard_case(808, 27);
-    assert_eq!(hidden, ["stroke_friction"]);
-    assert_eq!(r.verdict, "stroke_friction", "{:#?}", r.ranking);
+    let r = named_single(808, 27, "stroke_friction");
     assert!(
         ranked(&r, "stroke_friction")
             .note
@@ -747,9 +748,7 @@ fn a_coulomb_friction_the_stroke_model_also_fits_stays_coulomb() {
     // Skewed record 13 of the independent seed 808 (index 76 + 13): a Coulomb friction on
     // which the stroke friction scores 1.22× the Coulomb friction, the most of any Coulomb
     // record seen; STROKE_OVER_BEST keeps it Coulomb.
-    let (hidden, r) = standard_case(808, 89);
-    assert_eq!(hidden, ["coulomb_friction"]);
-    assert_eq!(r.verdict, "coulomb_friction", "{:#?}", r.ranking);
+    named_single(808, 89, "coulomb_friction");
 }
 
 /// The ranking entry of `effect` in `r`.
