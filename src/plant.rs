@@ -165,6 +165,14 @@ pub struct StrokeFriction {
     decay: f64,
     /// Distance beyond the pitch already applied to the recovery on this stroke.
     beyond_done_m: f64,
+    /// The film wears by distance ([`crate::preset::FilmLaw::Distance`]) rather than count.
+    distance: bool,
+    /// 1/breakdown distance (distance law).
+    inv_breakdown_per_m: f64,
+    /// Broken-down share of the film, 0..1 (distance law).
+    pub film: f64,
+    /// Position at the previous period (distance law).
+    prev_x_m: f64,
     dir: f64,
     last_rev_m: Option<f64>,
     /// Current friction multiplier.
@@ -186,6 +194,10 @@ impl StrokeFriction {
             level: 0.0,
             decay: 1.0,
             beyond_done_m: 0.0,
+            distance: s.law == crate::preset::FilmLaw::Distance,
+            inv_breakdown_per_m: 1.0 / units::mm_to_m(s.breakdown_mm),
+            film: 0.0,
+            prev_x_m: f64::NAN,
             dir: 0.0,
             last_rev_m: None,
             scale: 1.0,
@@ -198,6 +210,10 @@ impl StrokeFriction {
     /// made the compiler save every live floating-point value around it.
     #[inline(always)]
     fn observe(&mut self, x_m: f64, v_mps: f64) {
+        if self.distance {
+            self.observe_film(x_m, v_mps);
+            return;
+        }
         // Recovery: past the pitch, the film rebuilds with every mm travelled.
         if self.level > 0.0
             && let Some(prev) = self.last_rev_m
@@ -228,6 +244,34 @@ impl StrokeFriction {
         }
     }
 
+    /// The distance law: the film breaks down with the distance run within the pitch of the
+    /// last turning point and rebuilds beyond it.
+    #[cold]
+    #[inline(never)]
+    fn observe_film(&mut self, x_m: f64, v_mps: f64) {
+        let ds = if self.prev_x_m.is_finite() {
+            (x_m - self.prev_x_m).abs()
+        } else {
+            0.0
+        };
+        self.prev_x_m = x_m;
+        if let Some(prev) = self.last_rev_m
+            && ds > 0.0
+        {
+            let w = self.film;
+            self.film = if (x_m - prev).abs() <= self.pitch_m {
+                1.0 - (1.0 - w) * small_exp(-ds * self.inv_breakdown_per_m)
+            } else {
+                w * small_exp(-ds * self.inv_recovery_per_m)
+            };
+            self.refresh();
+        }
+        if v_mps.abs() >= REVERSAL_SPEED_MPS && v_mps.signum() != self.dir {
+            self.last_rev_m = Some(x_m);
+            self.dir = v_mps.signum();
+        }
+    }
+
     /// A reversal at `x_m` into direction `dir`: a short stroke raises the level.
     #[cold]
     #[inline(never)]
@@ -252,7 +296,11 @@ impl StrokeFriction {
     /// The friction multiplier and addition for the current level.
     fn refresh(&mut self) {
         let (scale, add) = if self.enabled {
-            let g = 1.0 - self.decay;
+            let g = if self.distance {
+                self.film
+            } else {
+                1.0 - self.decay
+            };
             (1.0 + self.rise_ratio * g, self.rise_n * g)
         } else {
             (1.0, 0.0)
@@ -719,10 +767,12 @@ impl AxisPlant {
             0.0
         };
         self.friction = FrictionModel::from_params(a);
-        let level = self.stroke.level;
+        let (level, film, prev_x) = (self.stroke.level, self.stroke.film, self.stroke.prev_x_m);
         let (dir, last) = (self.stroke.dir, self.stroke.last_rev_m);
         self.stroke = StrokeFriction::from_params(a);
         self.stroke.level = level;
+        self.stroke.film = film;
+        self.stroke.prev_x_m = prev_x;
         self.stroke.update_scale();
         self.stroke.dir = dir;
         self.stroke.last_rev_m = last;

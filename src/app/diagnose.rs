@@ -283,6 +283,9 @@ fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
         .filter(|e| rep.selected.contains(&e.effect))
     {
         ui.label(format!("{}: {}", e.effect, e.evidence));
+        if !e.note.is_empty() {
+            ui.label(format!("    {}", e.note));
+        }
     }
 }
 

@@ -220,6 +220,9 @@ fn print_which(r: &Report) {
             },
             e.evidence
         );
+        if !e.note.is_empty() {
+            say!("      note: {}", e.note);
+        }
     }
     say!("  (* found)");
     say!("\nVERDICT: {}", r.verdict);

@@ -109,6 +109,8 @@ pub struct Scores {
     pub shrink_pos: f64,
     /// Held-out shrink of the force residual.
     pub shrink_force: Option<f64>,
+    /// Shrink of the combined residual on the fitting part (set by the candidate scoring).
+    pub fit_shrink: f64,
     /// Shrink minus the complexity penalty: the ranking key.
     pub score: f64,
     /// Whether the effect counts as found.
@@ -408,6 +410,7 @@ impl<'a> Engine<'a> {
             shrink,
             shrink_pos: if hb > 0.0 { 1.0 - ha / hb } else { 0.0 },
             shrink_force,
+            fit_shrink: 0.0,
             score: shrink - PENALTY_PER_PARAM * n_params as f64,
             significant: false,
         }

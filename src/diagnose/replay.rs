@@ -470,7 +470,7 @@ pub enum Disturbance {
 
 impl Disturbance {
     /// The force at time `t_s` (windows are added by [`disturbance_series`] directly).
-    fn force_at(&self, t_s: f64) -> f64 {
+    pub fn force_at(&self, t_s: f64) -> f64 {
         match self {
             Disturbance::Windows(_) => 0.0,
             Disturbance::InCommand(d) => d.force_at(t_s),

@@ -362,7 +362,7 @@ fn trace_round(k: usize, r: &[(Fitted, Scores)]) {
     let mut out = String::new();
     for (f, s) in r {
         out += &format!(
-            "{label} round {k} {:<22} shrink {:6.3} pos {:6.3} force {:6.3} score {:6.3} sig {} ev {} | {} | {} | theta {:.4?}",
+            "{label} round {k} {:<22} shrink {:6.3} pos {:6.3} force {:6.3} score {:6.3} sig {} ev {} | {} | {} | theta {:.4?} | fit {:.3}",
             f.effect.name(),
             s.shrink,
             s.shrink_pos,
@@ -372,7 +372,8 @@ fn trace_round(k: usize, r: &[(Fitted, Scores)]) {
             f.evidence.pass,
             f.note,
             f.evidence.text.chars().take(160).collect::<String>(),
-            f.theta
+            f.theta,
+            s.fit_shrink
         );
         out.push('\n');
     }

@@ -183,15 +183,39 @@ pub struct Stribeck {
     pub velocity_mm_per_s: f64,
 }
 
+/// How the lubricant film of [`StrokeFriction`] wears.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FilmLaw {
+    /// By the count of short strokes (SPEC §5, the patent's N).
+    #[default]
+    Count,
+    /// By the distance run near the turning points: within `pitch_mm` of the last reversal
+    /// the film breaks down, w += (1 − w)·ds/breakdown; beyond it, it rebuilds,
+    /// w −= w·ds/recovery; the level is w instead of 1 − e^(−n/growth). Every stroke starts
+    /// with a rise, short strokes keep it.
+    Distance,
+}
+
+crate::choice_enum!(FilmLaw { Count => "count", Distance => "distance" });
+
 /// Friction rise over short reversal strokes (SPEC §5): each reversal stroke shorter than
 /// `pitch_mm` adds one to a level n; once a stroke runs past the pitch, n decays with the
 /// distance beyond it, n·exp(−(d − pitch)/recovery); the Coulomb and static levels scale
-/// by 1 + rise·(1 − e^(−n/growth_strokes)).
+/// by 1 + rise·(1 − e^(−n/growth_strokes)). [`FilmLaw::Distance`] wears the film by the
+/// distance run instead.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StrokeFriction {
     /// Whether the short-stroke rise applies.
     pub enabled: bool,
+    /// How the film wears (count of short strokes by default).
+    #[serde(default)]
+    pub law: FilmLaw,
+    /// Distance run within the pitch over which the film breaks down by 1 − 1/e, mm
+    /// ([`FilmLaw::Distance`] only).
+    #[serde(default = "default_breakdown_mm")]
+    pub breakdown_mm: f64,
     /// Oil-groove pitch or screw lead, mm: strokes shorter than this count as short.
     pub pitch_mm: f64,
     /// Relative rise of the Coulomb and static levels at full growth (0.5 = +50 %).
@@ -297,6 +321,10 @@ fn err(out: &mut Vec<FieldError>, path: String, reason: String) {
 }
 
 crate::choice_enum!(Feedback { Motor => "motor", Scale => "scale" });
+
+fn default_breakdown_mm() -> f64 {
+    5.0
+}
 
 impl Fields for AxisParams {
     fn fields(&mut self, w: &mut Walker<'_>) {
@@ -564,6 +592,16 @@ impl Fields for Friction {
                 let s = &mut self.stroke;
                 w.flag("enabled", "short-stroke rise on", &mut s.enabled);
                 w.when(s.enabled, |w| {
+                    w.choice("law", "film wears by", &mut s.law);
+                    let distance = s.law == FilmLaw::Distance;
+                    w.when(distance, |w| {
+                        w.num(
+                            "breakdown_mm",
+                            "breakdown",
+                            &mut s.breakdown_mm,
+                            Num::closed("mm", 0.01, 1e6),
+                        );
+                    });
                     w.num(
                         "pitch_mm",
                         "pitch",

@@ -197,6 +197,66 @@ fn stroke_friction_rises_on_short_strokes_and_recovers_on_long_ones() {
 }
 
 #[test]
+fn a_film_worn_by_distance_rises_after_each_turn_and_rebuilds_past_the_pitch() {
+    // FilmLaw::Distance with breakdown = pitch = 5 mm, recovery 10 mm, rise ×0.8: one pitch
+    // after a turning point the film is 1 − e^(−1) broken (from nearly whole after a 60 mm
+    // stroke), so the Coulomb level is ×(1 + 0.8·0.632); 45 mm further it has rebuilt to
+    // e^(−4.5) of that. Twenty 2 mm strokes break it down almost fully (×1.8).
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.viscous_n_s_per_m = 0.0;
+    let s = &mut a.friction.stroke;
+    s.enabled = true;
+    s.law = axisbench::preset::FilmLaw::Distance;
+    s.pitch_mm = 5.0;
+    s.breakdown_mm = 5.0;
+    s.recovery_mm = 10.0;
+    s.rise_ratio = 0.8;
+    let fc = a.friction.coulomb_n;
+    let mut prog = String::from("G90 G01 F2000\nX60.\nX0.\n");
+    for _ in 0..10 {
+        prog += "X2.\nX0.\n";
+    }
+    prog += "M30\n";
+    let m = run(&p, &prog);
+    let fric = col(&m.trace, "x.friction");
+    let pos = col_mm(&m.trace, "x.pos");
+    // The turning point: the NC reverses without an exact stop, so the table turns short of
+    // 60 mm by its following error.
+    let turn = (0..pos.len())
+        .max_by(|&i, &j| pos[i].total_cmp(&pos[j]))
+        .expect("a trace");
+    let ratio_at = |x_mm: f64| {
+        let k = turn
+            + pos[turn..]
+                .iter()
+                .position(|&x| x <= pos[turn] - x_mm)
+                .expect("passes");
+        fric[k].abs() / fc
+    };
+    let one_pitch = ratio_at(5.0);
+    assert!(
+        (one_pitch - (1.0 + 0.8 * (1.0 - (-1.0_f64).exp()))).abs() < 0.02,
+        "one pitch after the turn: ×{one_pitch}"
+    );
+    let far = ratio_at(50.0);
+    let want_far = 1.0 + 0.8 * (1.0 - (-1.0_f64).exp()) * (-4.5_f64).exp();
+    assert!(
+        (far - want_far).abs() < 0.01,
+        "45 mm past the pitch: ×{far}, want ×{want_far}"
+    );
+    let short = fric[fric.len() - 2000..]
+        .iter()
+        .map(|f| f.abs() / fc)
+        .fold(0.0, f64::max);
+    assert!(
+        short > 1.7 && short <= 1.8 + 1e-9,
+        "after short strokes: ×{short}"
+    );
+}
+
+#[test]
 fn thermal_growth_grows_with_distance_from_the_fixed_bearing() {
     let mut p = plain();
     let a = &mut p.axes[0];

@@ -27,6 +27,15 @@ const MIN_EXPLAINED_FORCE: f64 = 0.15;
 /// a repeating command, so it needs a clearer wave than the force does.
 const MIN_EXPLAINED_POS: f64 = 0.3;
 
+/// Level steps replace a periodic wave when they leave at most this share of what the wave
+/// leaves of the unexplained force. Set on the independent generator's stepped records of
+/// seeds 808, 909 and 1111, where a 5–6 s "square wave" stood for two or three steps.
+const STEPS_OVER_WAVE: f64 = 0.5;
+
+/// At most this many steps rival a wave: a few lasting changes, not a staircase that traces
+/// a slow sine (seed 1111: a 5 s sine read as ten steps).
+const WAVE_RIVAL_STEPS: usize = 5;
+
 /// Shortest period searched, s.
 const MIN_PERIOD_S: f64 = 0.1;
 
@@ -184,9 +193,19 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
     let dt = ctx.eng.split.main.t3_s;
     let rem_force = s.r_force.as_ref().map(|f| unexplained(s, f));
     let rem_pos = unexplained(s, &s.r_pos);
+    let min_gap = ((0.5 / dt) as usize).max(4);
     if let Some(w) = periodic_wave(ctx, rem_force.as_deref(), &rem_pos) {
-        let ev = wave_evidence(&w);
-        return (ev, Some(w));
+        // A few lasting level changes make a long period's peak too; when level steps leave
+        // far less of the unexplained force than the wave does, the force is stepped.
+        let stepped = rem_force.as_deref().is_some_and(|f| {
+            let st = evidence::steps(f, min_gap, 10.0, WAVE_RIVAL_STEPS);
+            !st.is_empty()
+                && centred_steps_sse(f, &st) <= STEPS_OVER_WAVE * wave_sse(f, &s.t_s, &w.dist)
+        });
+        if !stepped {
+            let ev = wave_evidence(&w);
+            return (ev, Some(w));
+        }
     }
     let rem = rem_force.unwrap_or(rem_pos);
     let t0 = s.t_s.first().copied().unwrap_or(0.0);
@@ -197,7 +216,6 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
             peak_explained: (0.0, 0.0),
         })
     };
-    let min_gap = ((0.5 / dt) as usize).max(4);
     let steps = evidence::steps(&rem, min_gap, 10.0, 10);
     let window = ((0.02 / dt) as usize).max(4);
     let bursts = evidence::bursts(&rem, window, 10.0);
@@ -270,6 +288,41 @@ fn steps_sse(y: &[f64], steps: &[evidence::Step]) -> f64 {
         sse += (v - level) * (v - level);
     }
     sse
+}
+
+/// What the wave `d` leaves of `y` (sampled at `t_s`) at its least-squares level and scale:
+/// the wave at its best, whichever residual it was read off.
+fn wave_sse(y: &[f64], t_s: &[f64], d: &Disturbance) -> f64 {
+    let w: Vec<f64> = t_s.iter().take(y.len()).map(|&t| d.force_at(t)).collect();
+    let y = &y[..w.len()];
+    let n = w.len().max(1) as f64;
+    let (mw, my) = (w.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let (mut sww, mut swy, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in w.iter().zip(y) {
+        let (dw, dy) = (a - mw, b - my);
+        sww += dw * dw;
+        swy += dw * dy;
+        syy += dy * dy;
+    }
+    let explained = if sww > 0.0 { swy * swy / sww } else { 0.0 };
+    (syy - explained).max(0.0)
+}
+
+/// [`steps_sse`] about the best level before the first step: the regression that leaves
+/// the unexplained force takes its mean out, so the steps' levels sit off zero there.
+fn centred_steps_sse(y: &[f64], steps: &[evidence::Step]) -> f64 {
+    let mut level = 0.0;
+    let mut next = steps.iter().peekable();
+    let (mut sum, mut sum_sq) = (0.0, 0.0);
+    for (k, v) in y.iter().enumerate() {
+        while let Some(st) = next.next_if(|st| st.index <= k) {
+            level += st.jump;
+        }
+        let e = v - level;
+        sum += e;
+        sum_sq += e * e;
+    }
+    (sum_sq - sum * sum / y.len().max(1) as f64).max(0.0)
 }
 
 /// What a burst reading leaves of `y`: inside each burst y minus its mean, elsewhere y.

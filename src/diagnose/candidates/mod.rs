@@ -224,6 +224,8 @@ pub enum Applied {
     LeadTable(Vec<(f64, f64)>),
     /// A disturbance on the main record (and those found on a validation record).
     Disturbance(super::replay::Disturbance, Vec<super::replay::Disturbance>),
+    /// A stroke friction whose film wears by distance (see [`friction::set_film`]).
+    Film(Vec<f64>),
 }
 
 impl Applied {
@@ -232,6 +234,7 @@ impl Applied {
         match self {
             Applied::Params(e, th) => e.apply(th, &mut c.model),
             Applied::LeadTable(t) => set_lead_table(c, t),
+            Applied::Film(th) => friction::set_film(c, th),
             Applied::Disturbance(d, v) => {
                 c.model.disturbance.push(d.clone());
                 c.dist_val.extend(v.iter().cloned());
@@ -500,6 +503,16 @@ impl Context<'_, '_> {
             Effect::Quantization | Effect::LeadError | Effect::BeamSag => {
                 special::fit(self, effect, ev)
             }
+            Effect::StrokeFriction => {
+                let film = friction::fit_film(self, &ev)?;
+                let count = self.fit_lm(effect, ev)?;
+                let fit_j = |f: &Fitted| self.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
+                Ok(match (count, film) {
+                    (Some(c), Some(f)) if fit_j(&f) < FILM_OVER_COUNT * fit_j(&c) => Some(f),
+                    (None, f) => f,
+                    (c, _) => c,
+                })
+            }
             _ => self.fit_lm(effect, ev),
         }
     }
@@ -616,7 +629,9 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
         .collect();
     if ctx.selected.is_empty() {
         stroke_far_ahead(&mut ranked);
+        lasting_steps(&mut ranked);
     }
+    play_beyond_constant(&mut ranked);
     ranked.sort_by(|a, b| {
         b.1.significant
             .cmp(&a.1.significant)
@@ -653,6 +668,69 @@ fn stroke_far_ahead(ranked: &mut [(Fitted, Scores)]) {
                 "counted by its held-out score, {:.0} % against {:.0} % for the best effect the signatures found",
                 100.0 * s.score,
                 100.0 * best
+            );
+        }
+    }
+}
+
+/// Level steps of force that take this share of the fitting residual away count on that
+/// alone, like bursts (see [`BURSTS_FIT_SHRINK`]), even when the held-out end is made worse:
+/// a later step is as unpredictable as a burst, and the model holds the last level. Set on
+/// the independent seeds 808–1111: stepped disturbances took 74–91 %, and the step search on
+/// every other record at most 63 % (62 % before the first effect was added).
+const STEPS_FIT_SHRINK: f64 = 0.7;
+
+/// [`STEPS_FIT_SHRINK`]'s rule, before the first effect is added.
+fn lasting_steps(ranked: &mut [(Fitted, Scores)]) {
+    for (f, s) in ranked.iter_mut() {
+        if f.effect == Effect::ExternalDisturbance
+            && !s.significant
+            && f.evidence.pass
+            && f.evidence.figures.contains_key("steps")
+            && s.fit_shrink >= STEPS_FIT_SHRINK
+        {
+            s.significant = true;
+            s.score = s
+                .score
+                .max(s.fit_shrink - PENALTY_WITH_SIGNATURE * f.n_params as f64);
+            f.note = format!(
+                "counted by the fitting part: the steps take {:.0} % of its residual away",
+                100.0 * s.fit_shrink
+            );
+            if s.shrink < 0.0 {
+                f.note += &format!(
+                    "; the held-out end holds changes no model predicts ({:.0} % worse)",
+                    -100.0 * s.shrink
+                );
+            }
+        }
+    }
+}
+
+/// The distance law of the stroke friction replaces the count law when it leaves at most
+/// this share of what the count law leaves of the fitting part.
+const FILM_OVER_COUNT: f64 = 0.9;
+
+/// A play with one flank favoured is a constant force with a gap of width zero: when the
+/// constant force alone predicts the held-out part at least as well, the gap is not found.
+/// (The play's signature test charges it less per parameter than the constant force's
+/// regression, so the scores alone would keep the larger model.) Seen on the independent
+/// seeds 808 and 909: constant forces read as 4 µm plays, 0.3–0.4 % behind.
+fn play_beyond_constant(ranked: &mut [(Fitted, Scores)]) {
+    let Some(constant) = ranked
+        .iter()
+        .find(|(f, _)| f.effect == Effect::ConstantForce)
+        .map(|(_, s)| s.shrink)
+    else {
+        return;
+    };
+    for (f, s) in ranked.iter_mut() {
+        if f.effect == Effect::BacklashAsymmetry && s.significant && s.shrink <= constant {
+            s.significant = false;
+            f.note = format!(
+                "a constant force alone predicts the held-out part as well ({:.1} % against {:.1} %)",
+                100.0 * constant,
+                100.0 * s.shrink
             );
         }
     }
@@ -836,6 +914,7 @@ fn score(ctx: &Context, f: &Fitted) -> Scores {
     } else {
         0.0
     };
+    s.fit_shrink = fit_shrink;
     let bursts = f.effect == Effect::ExternalDisturbance
         && f.evidence.pass
         && f.evidence.figures.contains_key("bursts")
