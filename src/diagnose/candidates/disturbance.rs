@@ -27,10 +27,14 @@ const MIN_EXPLAINED_FORCE: f64 = 0.15;
 /// a repeating command, so it needs a clearer wave than the force does.
 const MIN_EXPLAINED_POS: f64 = 0.3;
 
-/// Level steps replace a periodic wave when they leave at most this share of what the wave
-/// leaves of the unexplained force. Set on the independent generator's stepped records of
-/// seeds 808, 909 and 1111, where a 5–6 s "square wave" stood for two or three steps.
+/// Level steps or bursts replace a periodic wave when they leave at most this share of what
+/// the wave leaves of the unexplained force. Set on the independent generator's stepped
+/// records of seeds 808, 909 and 1111, where a 5–6 s "square wave" stood for two or three
+/// steps, and a bursty one of seed 808 (a 3.1 s wave for three bursts).
 const STEPS_OVER_WAVE: f64 = 0.5;
+
+/// More bursts than this are no bursts but a busy residual.
+const MAX_BURSTS: usize = 400;
 
 /// At most this many steps rival a wave: a few lasting changes, not a staircase that traces
 /// a slow sine (seed 1111: a 5 s sine read as ten steps).
@@ -195,14 +199,21 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
     let rem_pos = unexplained(s, &s.r_pos);
     let min_gap = ((0.5 / dt) as usize).max(4);
     if let Some(w) = periodic_wave(ctx, rem_force.as_deref(), &rem_pos) {
-        // A few lasting level changes make a long period's peak too; when level steps leave
-        // far less of the unexplained force than the wave does, the force is stepped.
-        let stepped = rem_force.as_deref().is_some_and(|f| {
+        // A few lasting level changes, or a few bursts, make a long period's peak too; when
+        // either leaves far less of the unexplained force than the wave does, the force is
+        // stepped or bursty.
+        let window = ((0.02 / dt) as usize).max(4);
+        let not_a_wave = rem_force.as_deref().is_some_and(|f| {
+            let wave_left = STEPS_OVER_WAVE * wave_sse(f, &s.t_s, &w.dist);
             let st = evidence::steps(f, min_gap, 10.0, WAVE_RIVAL_STEPS);
-            !st.is_empty()
-                && centred_steps_sse(f, &st) <= STEPS_OVER_WAVE * wave_sse(f, &s.t_s, &w.dist)
+            let bu = evidence::bursts(f, window, 10.0);
+            // A wave read off the position may sit in the amplifier's output, where the force
+            // residual keeps only its edges, which look like bursts (the EMPS pulse record).
+            let bursty = !w.from_position && !bu.is_empty() && bu.len() <= MAX_BURSTS;
+            (!st.is_empty() && centred_steps_sse(f, &st) <= wave_left)
+                || (bursty && bursts_sse(f, &bu) <= wave_left)
         });
-        if !stepped {
+        if !not_a_wave {
             let ev = wave_evidence(&w);
             return (ev, Some(w));
         }
@@ -219,7 +230,7 @@ pub fn detect(ctx: &Context) -> (Evidence, Option<Shaped>) {
     let steps = evidence::steps(&rem, min_gap, 10.0, 10);
     let window = ((0.02 / dt) as usize).max(4);
     let bursts = evidence::bursts(&rem, window, 10.0);
-    let bursts_ok = !bursts.is_empty() && bursts.len() <= 400;
+    let bursts_ok = !bursts.is_empty() && bursts.len() <= MAX_BURSTS;
     // A burst is two opposite level changes close together: the step search (at least
     // 0.5 s between steps) takes one edge of each for a lasting step. When both shapes are
     // there, the one that leaves less of the unexplained force wins.

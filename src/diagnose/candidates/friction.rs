@@ -14,7 +14,7 @@ use crate::diagnose::effects::Effect;
 use crate::diagnose::engine::Cand;
 use crate::diagnose::engine::corr_length;
 use crate::diagnose::evidence::{self, Regression};
-use crate::diagnose::lm::{self, Param};
+use crate::diagnose::lm::Param;
 use crate::preset::FilmLaw;
 use crate::units::{mm_per_s_to_m_per_s, mm_to_m};
 
@@ -466,18 +466,10 @@ pub fn fit_film(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, Diagnose
         .copied()
         .filter(|x| *x > 0.0)
         .unwrap_or(20.0);
-    let mut best: Option<lm::LmFit> = None;
-    for start in [[rise0, 5.0, 20.0], [rise0, 12.0, 30.0]] {
-        let f = lm::fit(&start, &params, &rows, 0.03, 6)?;
-        if best.as_ref().is_none_or(|b| f.cost < b.cost) {
-            best = Some(f);
-        }
-    }
-    let Some(f) = best else { return Ok(None) };
-    let std = lm::std_devs(
-        &f,
-        1.0 / (ctx.sig.corr_len / ctx.eng.stride as f64).max(1.0),
-    );
+    let starts = [vec![rise0, 5.0, 20.0], vec![rise0, 12.0, 30.0]];
+    let Some((f, std)) = ctx.best_lm(starts, &params, &rows)? else {
+        return Ok(None);
+    };
     let cand = build(&f.theta);
     let eval = ctx.eng.evaluate(&cand)?;
     Ok(Some(Fitted {

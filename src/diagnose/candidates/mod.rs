@@ -445,21 +445,18 @@ impl Context<'_, '_> {
             }
         };
         let rows = |th: &[f64]| Ok(Some(self.eng.lm_rows(&self.eng.sim_fit(&build(th))?)));
-        let mut best: Option<lm::LmFit> = None;
         let extra = ev.more_starts.iter().filter(|h| h.len() == n_e).cloned();
-        for mut start in starts(effect, &ev.hint).into_iter().chain(extra) {
-            start.extend(free.iter().map(|&i| ratios0[i]));
-            start.extend(sel0.iter().copied());
-            let f = lm::fit(&start, &params, &rows, 0.03, 6)?;
-            if best.as_ref().is_none_or(|b| f.cost < b.cost) {
-                best = Some(f);
-            }
-        }
-        let Some(f) = best else { return Ok(None) };
-        let std = lm::std_devs(
-            &f,
-            1.0 / (self.sig.corr_len / self.eng.stride as f64).max(1.0),
-        );
+        let all_starts = starts(effect, &ev.hint)
+            .into_iter()
+            .chain(extra)
+            .map(|mut s| {
+                s.extend(free.iter().map(|&i| ratios0[i]));
+                s.extend(sel0.iter().copied());
+                s
+            });
+        let Some((f, std)) = self.best_lm(all_starts, &params, &rows)? else {
+            return Ok(None);
+        };
         let cand = build(&f.theta);
         let eval = self.eng.evaluate(&cand)?;
         let mut extra = BTreeMap::new();
@@ -488,6 +485,30 @@ impl Context<'_, '_> {
                 vec![]
             },
             ratios,
+        }))
+    }
+
+    /// The lowest-cost Levenberg–Marquardt fit over `starts`, with one standard deviation of
+    /// each parameter (rows correlated over the record's correlation length).
+    pub fn best_lm(
+        &self,
+        starts: impl IntoIterator<Item = Vec<f64>>,
+        params: &[Param],
+        rows: &lm::Rows<'_>,
+    ) -> Result<Option<(lm::LmFit, Vec<f64>)>, DiagnoseError> {
+        let mut best: Option<lm::LmFit> = None;
+        for start in starts {
+            let f = lm::fit(&start, params, rows, 0.03, 6)?;
+            if best.as_ref().is_none_or(|b| f.cost < b.cost) {
+                best = Some(f);
+            }
+        }
+        Ok(best.map(|f| {
+            let std = lm::std_devs(
+                &f,
+                1.0 / (self.sig.corr_len / self.eng.stride as f64).max(1.0),
+            );
+            (f, std)
         }))
     }
 
