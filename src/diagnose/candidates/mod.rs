@@ -606,14 +606,19 @@ pub struct Round {
 /// significant ones first (both signature and shrink), then by score.
 pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError> {
     let next = AtomicUsize::new(0);
+    // The slowest fits first, so that neither thread is left with one at the end; the
+    // results are put back in the given order below.
+    let mut order: Vec<usize> = (0..effects.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(fit_weight(effects[i])));
     let results: Mutex<Vec<(usize, Fitted)>> = Mutex::new(Vec::new());
     let first_err: Mutex<Option<DiagnoseError>> = Mutex::new(None);
     std::thread::scope(|s| {
         for _ in 0..2 {
             s.spawn(|| {
                 loop {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(&e) = effects.get(i) else { break };
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(&i) = order.get(k) else { break };
+                    let e = effects[i];
                     match ctx.fit(e) {
                         Ok(Some(f)) => {
                             if let Ok(mut r) = results.lock() {
@@ -659,6 +664,15 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
             .then(b.1.score.total_cmp(&a.1.score))
     });
     Ok(Round { ranked })
+}
+
+/// Rough cost of fitting `e`, in replays: the scheduling order of [`fit_all`].
+fn fit_weight(e: Effect) -> u32 {
+    match e {
+        Effect::Compliance | Effect::StrokeFriction => 3,
+        Effect::ThermalGrowth | Effect::BacklashAsymmetry | Effect::StribeckFriction => 2,
+        _ => 1,
+    }
 }
 
 /// A stroke friction whose signature fails (its regression spans a count or a distance law
