@@ -469,3 +469,45 @@ fn extreme_values_in_every_numeric_field_leave_the_model_finite_and_the_app_resp
     wb.live.advance(100);
     assert!(wb.live.lock().machine.t_s() > t0_s);
 }
+
+#[test]
+fn the_stroke_friction_film_law_is_chosen_in_the_plant_panel() {
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1600.0, 6000.0))
+        .build_ui_state(|ui, wb: &mut Workbench| wb.ui(ui), default_wb());
+    h.run();
+    open_all_sections(&mut h);
+    h.get_all_by_label("short-stroke rise on")
+        .next()
+        .expect("the stroke friction's switch")
+        .click();
+    h.run();
+    assert!(h.state().preset.axes[0].friction.stroke.enabled);
+    assert!(
+        h.query_by_label("breakdown").is_none(),
+        "count law: no breakdown"
+    );
+    // "distance" also names backlash output modes: the film law's is the one that sets it.
+    let n = h.get_all_by_label("distance").count();
+    let mut found = false;
+    for i in 0..n {
+        if let Some(node) = h.get_all_by_label("distance").nth(i) {
+            node.click();
+        }
+        h.run();
+        if h.state().preset.axes[0].friction.stroke.law == axisbench::preset::FilmLaw::Distance {
+            found = true;
+            break;
+        }
+    }
+    assert!(found, "no \"distance\" option set the film law");
+    assert!(
+        h.query_by_label("breakdown").is_some(),
+        "the breakdown field shows"
+    );
+    let wb = h.state();
+    wb.live.advance(2000);
+    let s = wb.live.lock();
+    assert!(s.fault.is_none(), "{:?}", s.fault);
+    assert!(s.machine.axes[0].pos_m.is_finite());
+}
