@@ -436,6 +436,15 @@ fn linear_part(a: &AxisParams) -> AxisParams {
     l.screw_thermal.enabled = false;
     l.lead_error.enabled = false;
     l.servo.torque_limit_nm = f64::INFINITY;
+    // A hardening payload mount, at rest: its tangent stiffness there is the linear one
+    // (the matrix is stepped from unit states, where the cubic term would dominate).
+    if let Coupling::Payload {
+        hardening_deflection_um,
+        ..
+    } = &mut l.drive.coupling
+    {
+        *hardening_deflection_um = 0.0;
+    }
     l
 }
 

@@ -457,6 +457,17 @@ enum Mech {
     RigidPlay,
     /// Spring + damper with an optional dead zone.
     TwoMass { k_n_per_m: f64, c_n_s_per_m: f64 },
+    /// Motor and table one body, a payload on a spring + damper on the table. The payload's
+    /// state takes the motor's slots (`x_m`, `v_m`): the motor moves with the table, and the
+    /// state keeps four entries for the loop's linearisation.
+    Payload {
+        k_n_per_m: f64,
+        c_n_s_per_m: f64,
+        /// Sub-step over the payload's mass, s/kg.
+        h_over_m: f64,
+        /// k/d₀² of a hardening mount, N/m³ (0: linear).
+        k3_n_per_m3: f64,
+    },
 }
 
 /// What the plant shows after a step, in SI, load side.
@@ -510,12 +521,13 @@ impl PlantOut {
 }
 
 /// The mechanical state of the drive: motor and table positions (screw frame, load travel)
-/// and velocities.
+/// and velocities. With a payload on a spring ([`Coupling::Payload`]) the motor moves with
+/// the table and `x_m`, `v_m` are the payload's.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MechState {
-    /// Motor position as load travel, m.
+    /// Motor position as load travel (the payload's, see above), m.
     pub x_m: f64,
-    /// Motor velocity as load travel, m/s.
+    /// Motor velocity as load travel (the payload's, see above), m/s.
     pub v_m: f64,
     /// Table (nut) position along an ideal screw, m.
     pub x_t: f64,
@@ -740,11 +752,13 @@ impl AxisPlant {
     pub fn retune(&mut self, a: &AxisParams) {
         self.m_m = a.drive.reflected_motor_mass_kg();
         self.m_t = a.drive.table_mass_kg;
-        self.half_gap_m = if a.lost_motion.enabled {
-            0.5 * units::um_to_m(a.lost_motion.width_um)
-        } else {
-            0.0
-        };
+        // A payload coupling has no play (validation turns the pair down; see `Coupling`).
+        self.half_gap_m =
+            if a.lost_motion.enabled && !matches!(a.drive.coupling, Coupling::Payload { .. }) {
+                0.5 * units::um_to_m(a.lost_motion.width_um)
+            } else {
+                0.0
+            };
         self.mech = match a.drive.coupling {
             Coupling::Rigid if self.half_gap_m > 0.0 => Mech::RigidPlay,
             Coupling::Rigid => Mech::Rigid,
@@ -755,6 +769,22 @@ impl AxisPlant {
                 k_n_per_m: units::n_per_um_to_n_per_m(stiffness_n_per_um),
                 c_n_s_per_m: damping_n_s_per_m,
             },
+            Coupling::Payload {
+                mass_kg,
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+                hardening_deflection_um,
+            } => {
+                let k = units::n_per_um_to_n_per_m(stiffness_n_per_um);
+                let d0 = units::um_to_m(hardening_deflection_um);
+                Mech::Payload {
+                    k_n_per_m: k,
+                    c_n_s_per_m: damping_n_s_per_m,
+                    // Set with the sub-step below.
+                    h_over_m: 1.0 / mass_kg.max(1e-6),
+                    k3_n_per_m3: if d0 > 0.0 { k / (d0 * d0) } else { 0.0 },
+                }
+            }
         };
         if self.mech == Mech::Rigid {
             self.x_t = self.x_m;
@@ -804,6 +834,9 @@ impl AxisPlant {
             .then(|| q(units::um_to_m(e.scale_resolution_um)));
         self.n_sub = substeps(a, self.t3_s);
         self.h_s = self.t3_s / self.n_sub as f64;
+        if let Mech::Payload { h_over_m, .. } = &mut self.mech {
+            *h_over_m *= self.h_s;
+        }
         self.body_all = self.friction.body(self.m_m + self.m_t, self.h_s);
         self.body_table = self.friction.body(self.m_t, self.h_s);
         self.motor_h_over_m = if self.m_m > 0.0 {
@@ -834,7 +867,7 @@ impl AxisPlant {
             && !self.lead.enabled
             && self.scale_q_m.is_none()
             && !self.friction.stribeck
-            && !matches!(self.mech, Mech::TwoMass { .. })
+            && !matches!(self.mech, Mech::TwoMass { .. } | Mech::Payload { .. })
     }
 
     /// [`AxisPlant::step`], with the rarely used effects (Stribeck, stroke friction, lead
@@ -900,7 +933,24 @@ impl AxisPlant {
                     fric
                 }
             }
-            Mech::TwoMass { .. } => 0.0,
+            Mech::Payload {
+                k_n_per_m,
+                c_n_s_per_m,
+                h_over_m,
+                k3_n_per_m3,
+            } if FULL => {
+                let mut fric = 0.0;
+                for _ in 0..self.n_sub {
+                    fric = self.sub_payload(
+                        force_n,
+                        f_load,
+                        (scale, add),
+                        (k_n_per_m, k3_n_per_m3, c_n_s_per_m, h_over_m),
+                    );
+                }
+                fric
+            }
+            Mech::TwoMass { .. } | Mech::Payload { .. } => 0.0,
         };
         self.thermal
             .step((fric * self.v_t).abs(), self.v_t.abs(), self.t3_s);
@@ -964,6 +1014,34 @@ impl AxisPlant {
             self.friction
                 .step::<true>(&self.body_table, self.v_t, f_load, f_s, scale, add);
         self.x_m = trapezoid(self.x_m, h, v_m0, self.v_m);
+        self.x_t = trapezoid(self.x_t, h, self.v_t, v);
+        self.v_t = v;
+        f
+    }
+
+    /// One sub-step of the rigid drive with a payload on a spring + damper on the table
+    /// (`spring`: stiffness N/m, hardening N/m³, damping N·s/m, sub-step over the payload
+    /// mass s/kg). The
+    /// spring acts at the middle of the sub-step, as in [`Self::sub_two_mass`]; the payload's
+    /// state is in the motor's slots (see [`Mech::Payload`]).
+    #[inline(always)]
+    fn sub_payload(
+        &mut self,
+        force_n: f64,
+        f_load: f64,
+        (scale, add): (f64, f64),
+        (k_n_per_m, k3_n_per_m3, c_n_s_per_m, h_over_m): (f64, f64, f64, f64),
+    ) -> f64 {
+        let h = self.h_s;
+        let defl = self.x_t - self.x_m + 0.5 * h * (self.v_t - self.v_m);
+        let f_s =
+            defl * (k_n_per_m + k3_n_per_m3 * defl * defl) + c_n_s_per_m * (self.v_t - self.v_m);
+        let v_p0 = self.v_m;
+        self.v_m += h_over_m * f_s;
+        let (v, f) =
+            self.friction
+                .step::<true>(&self.body_all, self.v_t, f_load - f_s, force_n, scale, add);
+        self.x_m = trapezoid(self.x_m, h, v_p0, self.v_m);
         self.x_t = trapezoid(self.x_t, h, self.v_t, v);
         self.v_t = v;
         f
@@ -1054,12 +1132,18 @@ impl AxisPlant {
     #[inline(always)]
     fn write_out<const FULL: bool>(&mut self, fric_n: f64, map: &PosMap) {
         let x = self.x_t;
+        // With a payload the motor moves with the table (the payload has the motor's slots).
+        let x_motor = if FULL && matches!(self.mech, Mech::Payload { .. }) {
+            x
+        } else {
+            self.x_m
+        };
         let pos = map.gain * x + map.offset;
         let thermal = map.growth_per_m * (x - self.thermal.fixed_end_m);
         let lead = map.lead_slope * x + map.lead_offset_m;
         self.out = PlantOut {
-            motor_pos_m: self.x_m,
-            motor_enc_m: quantize(self.x_m, self.motor_q_m),
+            motor_pos_m: x_motor,
+            motor_enc_m: quantize(x_motor, self.motor_q_m),
             pos_m: pos,
             scale_m: if FULL {
                 quantize(pos, self.scale_q_m)
@@ -1068,7 +1152,7 @@ impl AxisPlant {
             },
             vel_mps: self.v_t,
             friction_n: fric_n,
-            gap_m: self.x_m - self.x_t,
+            gap_m: x_motor - x,
             thermal_m: thermal,
             lead_err_m: lead,
         };

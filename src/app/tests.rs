@@ -511,3 +511,67 @@ fn the_stroke_friction_film_law_is_chosen_in_the_plant_panel() {
     assert!(s.fault.is_none(), "{:?}", s.fault);
     assert!(s.machine.axes[0].pos_m.is_finite());
 }
+
+/// A payload on a hardening mount, chosen and edited in the plant panel, runs live.
+#[test]
+fn a_payload_coupling_is_chosen_and_edited_in_the_plant_panel() {
+    let mut h = Harness::builder()
+        .with_size(egui::vec2(1600.0, 6000.0))
+        .build_ui_state(|ui, wb: &mut Workbench| wb.ui(ui), default_wb());
+    h.run();
+    open_all_sections(&mut h);
+    assert!(
+        h.query_by_label("payload mass").is_none(),
+        "rigid: no payload"
+    );
+    // The default X axis has lost motion, which a payload coupling does not take: refused,
+    // with the reason at the coupling.
+    assert!(h.state().preset.axes[0].lost_motion.enabled);
+    h.get_by_label("payload").click();
+    h.run();
+    assert!(matches!(
+        h.state().preset.axes[0].drive.coupling,
+        axisbench::preset::Coupling::Rigid
+    ));
+    assert!(
+        h.query_all_by_label_contains("without backlash")
+            .next()
+            .is_some(),
+        "the refusal is shown"
+    );
+    assert!(h.state_mut().edit("axes.x.lost_motion.enabled", |p| {
+        p.axes[0].lost_motion.enabled = false
+    }));
+    h.run();
+    h.get_by_label("payload").click();
+    h.run();
+    assert!(matches!(
+        h.state().preset.axes[0].drive.coupling,
+        axisbench::preset::Coupling::Payload { .. }
+    ));
+    // Typed into the field after its value: "0" then "3" reads 3 µm (or 3 if replaced).
+    let text_input = egui::accesskit::Role::TextInput;
+    let label = "hardening deflection (0: linear)";
+    h.get_by_role_and_label(text_input, label).focus();
+    h.run();
+    h.get_by_role_and_label(text_input, label).type_text("3");
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    match h.state().preset.axes[0].drive.coupling {
+        axisbench::preset::Coupling::Payload {
+            hardening_deflection_um,
+            ..
+        } => assert!(
+            hardening_deflection_um > 0.0,
+            "{hardening_deflection_um}: {:?}",
+            h.state().field_errors
+        ),
+        ref c => panic!("coupling is {c:?}"),
+    }
+    let wb = h.state();
+    wb.live.advance(2000);
+    let s = wb.live.lock();
+    assert!(s.fault.is_none(), "{:?}", s.fault);
+    assert!(s.machine.axes[0].pos_m.is_finite());
+}

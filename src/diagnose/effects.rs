@@ -204,19 +204,22 @@ impl Effect {
                 a.gravity.enabled = true;
                 a.gravity.offset_n += th[0];
             }
-            Effect::Compliance => {
-                // A share of the moving mass sits beyond the spring (the table, or a payload
-                // on it); the rest moves with the motor.
-                let total = a.drive.total_mass_kg();
-                let far = (th[2] * total).max(1e-3);
-                let k = a.drive.force_per_torque();
-                a.drive.table_mass_kg = far;
-                a.drive.motor_inertia_kgm2 = (total - far).max(1e-6) / (k * k);
-                a.drive.coupling = Coupling::TwoMass {
+            Effect::Compliance if !a.lost_motion.enabled => {
+                // A share of the table's mass (with any payload it already carries) sits on
+                // a spring on it: a fixture or a head on a flexible mount, neither rubbed by
+                // the slide nor seen by the scale.
+                let table = a.drive.table_mass_kg + a.drive.payload_mass_kg();
+                let far = (th[2] * table).max(1e-3);
+                a.drive.table_mass_kg = (table - far).max(1e-3);
+                a.drive.coupling = Coupling::Payload {
+                    mass_kg: far,
                     stiffness_n_per_um: th[0],
                     damping_n_s_per_m: th[1],
+                    hardening_deflection_um: 0.0,
                 };
             }
+            // With play in the drive, the spring is the screw's.
+            Effect::Compliance => set_screw_spring(m, th),
             Effect::ThermalGrowth => {
                 let t = &mut a.screw_thermal;
                 t.enabled = true;
@@ -260,4 +263,21 @@ impl Effect {
             Effect::ExternalDisturbance => {}
         }
     }
+}
+
+/// Gives `m` a compliance as the screw's spring (`th`: stiffness N/µm, damping N·s/m, share
+/// of the moving mass beyond the spring): the table beyond it, the rest moving with the
+/// motor. The table is then rubbed by the slide and read by the scale, unlike a payload on
+/// a mount ([`Effect::apply`] without play).
+pub fn set_screw_spring(m: &mut Model, th: &[f64]) {
+    let a = &mut m.axis;
+    let total = a.drive.total_mass_kg();
+    let far = (th[2] * total).max(1e-3);
+    let k = a.drive.force_per_torque();
+    a.drive.table_mass_kg = far;
+    a.drive.motor_inertia_kgm2 = (total - far).max(1e-6) / (k * k);
+    a.drive.coupling = Coupling::TwoMass {
+        stiffness_n_per_um: th[0],
+        damping_n_s_per_m: th[1],
+    };
 }

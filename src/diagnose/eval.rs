@@ -257,7 +257,13 @@ fn hide(e: Effect, rng: &mut Rng, m: &mut Model, n: usize, params: &mut BTreeMap
     for (d, v) in e.params().iter().zip(&th) {
         params.insert(format!("{}.{}", e.name(), d.key), *v);
     }
-    e.apply(&th, m);
+    if e == Effect::Compliance {
+        // Our own generator's compliance is the screw's spring between motor and table (the
+        // one the model had first; the independent generator's is a payload on a mount).
+        crate::diagnose::effects::set_screw_spring(m, &th);
+    } else {
+        e.apply(&th, m);
+    }
     if e == Effect::ThermalGrowth {
         // Accelerated warm-up so that it shows within a short record: a light screw that
         // loses its heat fast (time constant as drawn, heat loss 20 W/K).

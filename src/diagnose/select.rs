@@ -186,13 +186,13 @@ fn take_refitted(selected: &mut [(Fitted, Scores)], sel_theta: &[f64]) {
     }
     let mut at = 0;
     for (g, _) in selected.iter_mut().filter(|(g, _)| !proven_only(g)) {
-        if let (Applied::Params(e, th), true) = (&g.applied, g.refit) {
+        if let (Some((_, th)), true) = (g.applied.fitted(), g.refit) {
             let n = th.len();
             let Some(new) = sel_theta.get(at..at + n) else {
                 return;
             };
             g.theta = new.to_vec();
-            g.applied = Applied::Params(*e, new.to_vec());
+            g.applied = g.applied.with_theta(new);
             at += n;
         }
     }
@@ -307,7 +307,7 @@ fn joint_refit(
         for (f, _) in selected {
             if f.refit {
                 let n = f.effect.params().len();
-                Applied::Params(f.effect, th[at..at + n].to_vec()).apply(&mut c);
+                f.applied.with_theta(&th[at..at + n]).apply(&mut c);
                 at += n;
             } else {
                 f.applied.apply(&mut c);

@@ -77,9 +77,18 @@ impl Drive {
         self.motor_inertia_kgm2 * k * k
     }
 
-    /// Everything the motor accelerates when motor and table move as one body.
+    /// Everything the motor accelerates when motor and table move as one body (with a
+    /// payload on a spring, the payload too).
     pub fn total_mass_kg(&self) -> f64 {
-        self.reflected_motor_mass_kg() + self.table_mass_kg
+        self.reflected_motor_mass_kg() + self.table_mass_kg + self.payload_mass_kg()
+    }
+
+    /// The mass on a spring on the table ([`Coupling::Payload`]); 0 otherwise.
+    pub fn payload_mass_kg(&self) -> f64 {
+        match self.coupling {
+            Coupling::Payload { mass_kg, .. } => mass_kg,
+            _ => 0.0,
+        }
     }
 }
 
@@ -95,6 +104,22 @@ pub enum Coupling {
         stiffness_n_per_um: f64,
         /// Damping across that spring, N·s/m.
         damping_n_s_per_m: f64,
+    },
+    /// Motor and table rigid (apart from backlash is not supported), with a payload — a
+    /// fixture, a workpiece, a tool head on a flexible mount — on a spring and damper on the
+    /// table. The slide friction and the scale stay on the table; the payload is neither
+    /// rubbed nor measured, so it shows only through the force it pushes back with.
+    Payload {
+        /// Mass on the spring, kg (not part of `table_mass_kg`).
+        mass_kg: f64,
+        /// Stiffness of its mount, N/µm.
+        stiffness_n_per_um: f64,
+        /// Damping across the mount, N·s/m.
+        damping_n_s_per_m: f64,
+        /// A mount that stiffens as it deflects: F = k·d·(1 + (d/d₀)²), d₀ this deflection,
+        /// µm (where the force has doubled over the linear spring's). 0: a linear mount.
+        #[serde(default)]
+        hardening_deflection_um: f64,
     },
 }
 
@@ -375,6 +400,15 @@ impl Fields for AxisParams {
         }
         let needs_motor_mass =
             self.lost_motion.enabled || matches!(self.drive.coupling, Coupling::TwoMass { .. });
+        if self.lost_motion.enabled && matches!(self.drive.coupling, Coupling::Payload { .. }) {
+            err(
+                out,
+                format!("{at}.drive.coupling"),
+                "a payload on a spring is modelled on a drive without backlash: turn lost_motion \
+                 off or use a two_mass coupling"
+                    .into(),
+            );
+        }
         if needs_motor_mass && self.drive.motor_inertia_kgm2 <= 0.0 {
             err(
                 out,
@@ -448,6 +482,40 @@ impl Fields for Drive {
                 );
             });
         }
+        if let Coupling::Payload {
+            mass_kg,
+            stiffness_n_per_um,
+            damping_n_s_per_m,
+            hardening_deflection_um,
+        } = &mut self.coupling
+        {
+            w.nest("coupling", |w| {
+                w.num(
+                    "mass_kg",
+                    "payload mass",
+                    mass_kg,
+                    Num::closed("kg", 0.01, 1e6),
+                );
+                w.num(
+                    "stiffness_n_per_um",
+                    "mount stiffness",
+                    stiffness_n_per_um,
+                    Num::closed("N/um", 0.01, 1e5),
+                );
+                w.num(
+                    "damping_n_s_per_m",
+                    "mount damping",
+                    damping_n_s_per_m,
+                    Num::closed("N*s/m", 0.0, 1e8),
+                );
+                w.num(
+                    "hardening_deflection_um",
+                    "hardening deflection (0: linear)",
+                    hardening_deflection_um,
+                    Num::closed("um", 0.0, 1e5),
+                );
+            });
+        }
     }
 }
 
@@ -457,28 +525,40 @@ impl Fields for Drive {
 enum CouplingKind {
     Rigid,
     TwoMass,
+    Payload,
 }
 
-crate::choice_enum!(CouplingKind { Rigid => "rigid", TwoMass => "two_mass" });
+crate::choice_enum!(CouplingKind { Rigid => "rigid", TwoMass => "two_mass", Payload => "payload" });
 
 impl CouplingKind {
     fn of(c: &Coupling) -> CouplingKind {
         match c {
             Coupling::Rigid => CouplingKind::Rigid,
             Coupling::TwoMass { .. } => CouplingKind::TwoMass,
+            Coupling::Payload { .. } => CouplingKind::Payload,
         }
     }
 
     fn apply(self, c: &mut Coupling) {
         match (self, &*c) {
-            (CouplingKind::Rigid, Coupling::TwoMass { .. }) => *c = Coupling::Rigid,
-            (CouplingKind::TwoMass, Coupling::Rigid) => {
+            (CouplingKind::Rigid, Coupling::Rigid)
+            | (CouplingKind::TwoMass, Coupling::TwoMass { .. })
+            | (CouplingKind::Payload, Coupling::Payload { .. }) => {}
+            (CouplingKind::Rigid, _) => *c = Coupling::Rigid,
+            (CouplingKind::TwoMass, _) => {
                 *c = Coupling::TwoMass {
                     stiffness_n_per_um: 200.0,
                     damping_n_s_per_m: 2000.0,
                 }
             }
-            _ => {}
+            (CouplingKind::Payload, _) => {
+                *c = Coupling::Payload {
+                    mass_kg: 20.0,
+                    stiffness_n_per_um: 10.0,
+                    damping_n_s_per_m: 1000.0,
+                    hardening_deflection_um: 0.0,
+                }
+            }
         }
     }
 }

@@ -442,7 +442,7 @@ fn axis_step_rules(a: &AxisParams, t3_s: f64, t2_s: f64, out: &mut Vec<FieldErro
             ),
         );
     }
-    if let Coupling::TwoMass { .. } = a.drive.coupling {
+    if !matches!(a.drive.coupling, Coupling::Rigid) {
         let n = a.required_substeps(t3_s);
         if n.is_finite() && n > f64::from(MAX_SUBSTEPS) {
             err(
@@ -466,17 +466,56 @@ impl AxisParams {
             Coupling::TwoMass {
                 stiffness_n_per_um,
                 damping_n_s_per_m,
+            } => resolving_substeps(
+                self.drive.reflected_motor_mass_kg(),
+                self.drive.table_mass_kg,
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+                t3_s,
+            ),
+            Coupling::Payload {
+                mass_kg,
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+                hardening_deflection_um,
             } => {
-                let (m_m, m_t) = (
-                    self.drive.reflected_motor_mass_kg(),
-                    self.drive.table_mass_kg,
-                );
-                let m_red = m_m * m_t / (m_m + m_t);
-                let omega = (units::n_per_um_to_n_per_m(stiffness_n_per_um) / m_red).sqrt();
-                let by_k = (t3_s * omega / 0.3).ceil();
-                let by_c = (t3_s * damping_n_s_per_m / m_red / 0.5).ceil();
-                by_k.max(by_c).max(1.0)
+                let near_kg = self.drive.reflected_motor_mass_kg() + self.drive.table_mass_kg;
+                let k = stiffness_n_per_um
+                    * self.payload_stiffening(mass_kg, stiffness_n_per_um, hardening_deflection_um);
+                resolving_substeps(near_kg, mass_kg, k, damping_n_s_per_m, t3_s)
             }
         }
     }
+}
+
+impl AxisParams {
+    /// How much stiffer than at rest a hardening payload mount ([`Coupling::Payload`]) can
+    /// get: its tangent stiffness where it carries twice the force that accelerates the
+    /// payload along with the whole axis at the motor's torque limit (the quasi-static
+    /// share, doubled for the overshoot of a lightly damped mount). 1 for a linear mount.
+    fn payload_stiffening(&self, mass_kg: f64, k_n_per_um: f64, d0_um: f64) -> f64 {
+        if !(d0_um > 0.0 && k_n_per_um > 0.0) {
+            return 1.0;
+        }
+        let f_max_n = self.servo.torque_limit_nm.abs() * self.drive.force_per_torque();
+        let f_n = 2.0 * f_max_n * mass_kg / self.drive.total_mass_kg().max(1e-9);
+        // k·d·(1 + (d/d0)²) = f: d/d0 = r solves r + r³ = f/(k·d0); r below both roots.
+        let q = f_n / (k_n_per_um * d0_um);
+        let r = q.min(q.cbrt());
+        if r.is_finite() {
+            1.0 + 3.0 * r * r
+        } else {
+            1.0
+        }
+    }
+}
+
+/// Sub-steps of T3 that resolve a spring `k` (N/µm) with damper `c` between masses `m_a` and
+/// `m_b`: 0.3 rad of the resonance and half the damping time per sub-step.
+fn resolving_substeps(m_a: f64, m_b: f64, k_n_per_um: f64, c_n_s_per_m: f64, t3_s: f64) -> f64 {
+    let m_red = m_a * m_b / (m_a + m_b);
+    let omega = (units::n_per_um_to_n_per_m(k_n_per_um) / m_red).sqrt();
+    let by_k = (t3_s * omega / 0.3).ceil();
+    let by_c = (t3_s * c_n_s_per_m / m_red / 0.5).ceil();
+    by_k.max(by_c).max(1.0)
 }

@@ -1,7 +1,7 @@
 //! Analytic and physical checks of the amplifier and the plant.
 
 use axisbench::preset::{Coupling, Mode};
-use axisbench::units::{force_per_torque, mm_to_m, mm_to_um};
+use axisbench::units::{force_per_torque, m_to_um, mm_to_m, mm_to_um, n_per_um_to_n_per_m};
 
 use crate::common::{at, col, col_mm, plain, run};
 
@@ -416,6 +416,60 @@ fn lightly_damped_coupling_decays_at_the_analytic_rate() {
         (ratio / expected - 1.0).abs() < 0.1,
         "envelope ratio over 0.5 s {ratio:.4}, analytic exp(−ζωt) = {expected:.4}"
     );
+}
+
+/// A payload on a mount on the table, the drive pushed by a constant force (no friction, no
+/// servo): once the mount's ringing has died out the whole axis accelerates at F/(m_near +
+/// m_p), and the mount carries the payload's share m_p·a at the deflection its law gives:
+/// d = m_p·a/k for a linear mount, k·d·(1 + (d/d₀)²) = m_p·a for a hardening one.
+#[test]
+fn a_payload_mount_deflects_by_its_law_under_a_steady_acceleration() {
+    use axisbench::plant::{AxisPlant, Sensor, Start};
+    for d0_um in [0.0, 4.0] {
+        let mut p = plain();
+        let a = &mut p.axes[0];
+        a.friction.enabled = false;
+        a.gravity.enabled = false;
+        let (m_p, k_n_per_um) = (30.0, 2.0);
+        let m_near = a.drive.reflected_motor_mass_kg() + a.drive.table_mass_kg;
+        let m_red = m_near * m_p / (m_near + m_p);
+        // Half of critical damping, so the ringing is gone well within the run.
+        let c = 2.0 * 0.5 * (n_per_um_to_n_per_m(k_n_per_um) * m_red).sqrt();
+        a.drive.coupling = Coupling::Payload {
+            mass_kg: m_p,
+            stiffness_n_per_um: k_n_per_um,
+            damping_n_s_per_m: c,
+            hardening_deflection_um: d0_um,
+        };
+        let mut plant = AxisPlant::new(a, 1e-3, Start::at_rest(Sensor::MotorEncoder, 0.0));
+        let force_n = 500.0;
+        for _ in 0..300 {
+            plant.step(force_n, 0.0);
+        }
+        let s = plant.mech_state();
+        // The payload's state is in the motor's slots.
+        let defl_um = m_to_um(s.x_t - s.x_m);
+        let f_s = m_p * force_n / (m_near + m_p);
+        let expected_um = if d0_um > 0.0 {
+            // r + r³ = f_s/(k·d0), by Newton from the linear deflection's ratio.
+            let q = f_s / (k_n_per_um * d0_um);
+            let mut r = q.cbrt();
+            for _ in 0..50 {
+                r -= (r + r * r * r - q) / (1.0 + 3.0 * r * r);
+            }
+            r * d0_um
+        } else {
+            f_s / k_n_per_um
+        };
+        assert!(
+            (defl_um / expected_um - 1.0).abs() < 0.005,
+            "d0 = {d0_um} µm: deflection {defl_um:.3} µm, the law gives {expected_um:.3} µm"
+        );
+        assert!(
+            (plant.out().motor_pos_m - plant.out().pos_m).abs() < 1e-12,
+            "the motor moves with the table"
+        );
+    }
 }
 
 #[test]

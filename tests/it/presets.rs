@@ -242,3 +242,25 @@ proptest::proptest! {
         }
     }
 }
+
+/// A payload on a spring is modelled on a drive without play: the pair is refused at the
+/// coupling's path, and each alone is accepted.
+#[test]
+fn a_payload_beside_lost_motion_is_refused_at_the_coupling() {
+    let mut p = preset::load_embedded("default.ron").expect("loads").preset;
+    p.axes[0].drive.coupling = axisbench::preset::Coupling::Payload {
+        mass_kg: 20.0,
+        stiffness_n_per_um: 10.0,
+        damping_n_s_per_m: 1000.0,
+        hardening_deflection_um: 2.0,
+    };
+    p.axes[0].lost_motion.enabled = false;
+    assert!(p.validate().is_empty(), "{:?}", p.validate());
+    p.axes[0].lost_motion.enabled = true;
+    let errs = p.validate();
+    assert!(
+        errs.iter()
+            .any(|e| e.path == "axes.x.drive.coupling" && e.reason.contains("without backlash")),
+        "{errs:?}"
+    );
+}
