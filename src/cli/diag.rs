@@ -154,6 +154,9 @@ fn print_calibration(r: &Report) {
         ),
         None => say!("  no channel logged off its instant"),
     }
+    if !c.lag_reading.is_empty() {
+        say!("  {}", c.lag_reading);
+    }
     say!(
         "  common lag of position and force behind the model: {:.2} samples ({:+.3} ms)",
         -c.common_lag_samples,
@@ -323,11 +326,17 @@ pub fn bench(samples: usize) -> Result<()> {
     )?;
     let secs = t0.elapsed().as_secs_f64();
     say!(
-        "diagnose samples={} candidates={} hidden={} verdict={} seconds={:.2}",
+        "diagnose samples={} candidates={} hidden={} verdict={} readings={} seconds={:.2}",
         case.record.len(),
         rep.ranking.len(),
         case.hidden.join("+"),
         rep.verdict,
+        // Two when a one-sample lag was diagnosed both as a skew and as a lag.
+        if rep.calibration.lag_reading.is_empty() {
+            1
+        } else {
+            2
+        },
         secs
     );
     Ok(())

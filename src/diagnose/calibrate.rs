@@ -145,6 +145,10 @@ pub struct Calibration {
     pub j_nominal: f64,
     /// … after calibration and skew removal.
     pub j_calibrated: f64,
+    /// How a one-sample lag was read when both readings were diagnosed (see
+    /// [`Calibration::lag_instead_of_skew`]); empty otherwise.
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub lag_reading: String,
 }
 
 impl Calibration {
@@ -155,6 +159,22 @@ impl Calibration {
             p.apply(&mut c.model.axis, r);
         }
         c
+    }
+
+    /// The same calibration with a one-sample command skew read as a common lag instead
+    /// (None when the shifts were not read so): the two give the same record, and a force
+    /// the model lacks can make the loop follow one sample late too (seed 1818 case_020, a
+    /// viscous friction of 170 % of the nominal's, realigned, left no viscous friction to
+    /// fit). [`super::diagnose`] tries both.
+    pub fn lag_instead_of_skew(&self) -> Option<Calibration> {
+        let s = self.skew?;
+        (s.channel == Channel::Cmd && (s.samples - 1.0).abs() < WHOLE_SAMPLE_LAG_TOL).then(|| {
+            Calibration {
+                skew: None,
+                common_lag_samples: -s.samples,
+                ..self.clone()
+            }
+        })
     }
 
     /// A one-line summary for reports.
@@ -179,7 +199,12 @@ impl Calibration {
             ),
             None => String::new(),
         };
-        format!("{}{skew}", r.join(", "))
+        let reading = if self.lag_reading.is_empty() {
+            String::new()
+        } else {
+            format!("; {}", self.lag_reading)
+        };
+        format!("{}{skew}{reading}", r.join(", "))
     }
 }
 
@@ -443,12 +468,13 @@ pub fn fit(eng: &Engine, nominal: &Cand) -> Result<Calibration, DiagnoseError> {
     let ps = CalParam::of(&nominal.model.axis);
     let (ratios, up, uf) = fit_ratios(eng, nominal, &ps, true)?;
     let (skew, common) = classify_shifts(up, eng.has_force.then_some(uf));
-    let at_bound = ps
+    let at_bound: Vec<CalParam> = ps
         .iter()
         .zip(&ratios)
         .filter(|(_, r)| (*r - 1.0).abs() > MAX_RATIO_CHANGE - 0.005)
         .map(|(p, _)| *p)
         .collect();
+
     Ok(Calibration {
         ratios: ps.into_iter().zip(ratios).collect(),
         at_bound,
@@ -458,6 +484,7 @@ pub fn fit(eng: &Engine, nominal: &Cand) -> Result<Calibration, DiagnoseError> {
         common_lag_samples: common,
         j_nominal: 0.0,
         j_calibrated: 0.0,
+        lag_reading: String::new(),
     })
 }
 

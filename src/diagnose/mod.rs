@@ -407,49 +407,136 @@ pub fn diagnose(
     )?;
     (progress.report)(0.02, "calibrating the nominal");
     let mut cal = calibrate::fit(&eng0, &nominal)?;
-    let j_nominal = eng0.j(&nom_eval.hold_pos, nom_eval.hold_force.as_deref());
-    let (main_d, val_d) = match &cal.skew {
-        Some(s) => (
-            calibrate::deskew(main, s),
-            validate.map(|v| calibrate::deskew(v, s)),
-        ),
-        None => (main.clone(), validate.cloned()),
+    cal.j_nominal = eng0.j(&nom_eval.hold_pos, nom_eval.hold_force.as_deref());
+    let stage = Stage {
+        preset,
+        main,
+        validate,
+        opts,
+        nominal: &nominal,
+        effects: &effects,
+        eng0: &eng0,
+        nom_eval: &nom_eval,
     };
-    let split = engine::Split::new(&main_d, val_d.as_ref(), opts.holdout)?;
-    let (mut eng, _) = engine::Engine::new(split, &cal.apply(&nominal), progress)?;
-    // The ratios were fitted alongside the channel shifts; the common lag is left to the
-    // delay candidate, so they are fitted again without it.
-    calibrate::refit_ratios(&eng, &nominal, &mut cal)?;
-    let calibrated = cal.apply(&nominal);
-    let cal_eval = eng.evaluate(&calibrated)?;
-    eng.set_scale(&cal_eval);
-    if let Some(path) = std::env::var_os("AXB_DUMP") {
-        dump_residuals(&eng, &cal_eval, std::path::Path::new(&path));
-    }
-    // In the nominal's normalisation, so the two figures compare.
-    cal.j_nominal = j_nominal;
-    cal.j_calibrated = eng0.j(&cal_eval.hold_pos, cal_eval.hold_force.as_deref());
-    let outcome = select::run(
-        &mut eng,
-        &cal,
-        &nominal,
-        &calibrated,
-        &cal_eval,
-        &effects,
-        opts.max_effects,
+    let Some(unaligned) = cal.lag_instead_of_skew() else {
+        let (report, _) = stage.run(cal, progress)?;
+        (progress.report)(1.0, "done");
+        return Ok(report);
+    };
+    // A lag of one whole sample is the command logged a sample early, or the lag of a force
+    // the model lacks (a large viscous or stroke friction makes the loop follow late): the
+    // two readings are diagnosed each, and the realigned one is kept unless the other
+    // leaves clearly less of the held-out part.
+    let first = |f: f64, s: &str| (progress.report)(0.02 + 0.49 * f, s);
+    let second = |f: f64, s: &str| (progress.report)(0.51 + 0.49 * f, s);
+    let (aligned, j_aligned) = stage.run(
+        cal,
+        &Progress {
+            report: &first,
+            cancel: progress.cancel,
+        },
+    )?;
+    let (lagging, j_lagging) = stage.run(
+        unaligned,
+        &Progress {
+            report: &second,
+            cancel: progress.cancel,
+        },
     )?;
     (progress.report)(1.0, "done");
-    Ok(report::build(
-        preset,
-        &eng,
-        report::Parts {
-            cal,
-            nom_eval,
-            cal_eval,
-            outcome,
-            base_axis: base_axis_of(preset, &main.axis),
-        },
-    ))
+    let (mut kept, other, j_kept, j_other) = if j_lagging < LAG_OVER_SKEW * j_aligned {
+        (
+            lagging,
+            "the command logged a sample early",
+            j_lagging,
+            j_aligned,
+        )
+    } else {
+        (aligned, "a lag of the responses", j_aligned, j_lagging)
+    };
+    kept.calibration.lag_reading = format!(
+        "a one-sample lag, also diagnosed as {other}: that reading left {:.3} of the held-out part against {:.3}",
+        j_other, j_kept
+    );
+    Ok(kept)
+}
+
+/// The reading of a one-sample lag as a lag, not a command skew, is kept when it leaves at
+/// most this share of what the realigned reading leaves of the held-out part (in the
+/// nominal's normalisation): a skew, once realigned, needs no effect, and the same skew
+/// read as a lag needs a delay of one sample, which explains it as well; only a missing
+/// force that the realignment would hide explains clearly more.
+const LAG_OVER_SKEW: f64 = 0.9;
+
+/// What the diagnosis does after the calibration, for one reading of the channel shifts.
+struct Stage<'a> {
+    preset: &'a Preset,
+    main: &'a Record,
+    validate: Option<&'a Record>,
+    opts: &'a Options,
+    nominal: &'a engine::Cand,
+    effects: &'a [Effect],
+    /// The engine on the record as logged (the calibration's).
+    eng0: &'a engine::Engine<'a>,
+    nom_eval: &'a engine::Eval,
+}
+
+impl Stage<'_> {
+    /// Realigns a skewed channel, re-fits the ratios, selects the effects and builds the
+    /// report; also returns the final held-out criterion in the nominal's normalisation.
+    fn run(
+        &self,
+        mut cal: calibrate::Calibration,
+        progress: &Progress,
+    ) -> Result<(Report, f64), DiagnoseError> {
+        let (main_d, val_d) = match &cal.skew {
+            Some(s) => (
+                calibrate::deskew(self.main, s),
+                self.validate.map(|v| calibrate::deskew(v, s)),
+            ),
+            None => (self.main.clone(), self.validate.cloned()),
+        };
+        let split = engine::Split::new(&main_d, val_d.as_ref(), self.opts.holdout)?;
+        let (mut eng, _) = engine::Engine::new(split, &cal.apply(self.nominal), progress)?;
+        // The ratios were fitted alongside the channel shifts; the common lag is left to the
+        // delay candidate, so they are fitted again without it.
+        calibrate::refit_ratios(&eng, self.nominal, &mut cal)?;
+        let calibrated = cal.apply(self.nominal);
+        let cal_eval = eng.evaluate(&calibrated)?;
+        eng.set_scale(&cal_eval);
+        if let Some(path) = std::env::var_os("AXB_DUMP") {
+            dump_residuals(&eng, &cal_eval, std::path::Path::new(&path));
+        }
+        // In the nominal's normalisation, so the two figures compare.
+        cal.j_calibrated = self
+            .eng0
+            .j(&cal_eval.hold_pos, cal_eval.hold_force.as_deref());
+        let outcome = select::run(
+            &mut eng,
+            &cal,
+            self.nominal,
+            &calibrated,
+            &cal_eval,
+            self.effects,
+            self.opts.max_effects,
+        )?;
+        let j_final = self.eng0.j(
+            &outcome.final_eval.hold_pos,
+            outcome.final_eval.hold_force.as_deref(),
+        );
+        let report = report::build(
+            self.preset,
+            &eng,
+            report::Parts {
+                cal,
+                nom_eval: self.nom_eval.clone(),
+                cal_eval,
+                outcome,
+                base_axis: base_axis_of(self.preset, &self.main.axis),
+            },
+        );
+        Ok((report, j_final))
+    }
 }
 
 /// Development aid: writes the fitting part's measured signals and calibrated residuals

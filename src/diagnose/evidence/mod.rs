@@ -28,7 +28,7 @@ pub use lag::{Lag, lag};
 pub use periodic::{Periodic, WaveShape, periodic_in_time};
 pub use position::{PositionPeriodic, periodic_in_position};
 pub use regress::{Regression, regress};
-pub use resonance::{Resonance, Ringing, Tone, resonance, ringing, tone};
+pub use resonance::{RINGING_STEP_SHARE, Resonance, Ringing, Tone, resonance, ringing, tone};
 pub use steps::{Burst, Step, bursts, steps};
 
 use nalgebra::{DMatrix, DVector, SVD};

@@ -299,7 +299,7 @@ pub struct Ringing {
 }
 
 /// Steps of `acc` (one sample to the next) at least this share of its largest step.
-const STEP_SHARE: f64 = 0.3;
+pub const RINGING_STEP_SHARE: f64 = 0.3;
 
 /// Averages `y` over the `window_s` after each step of `acc` (both sampled every `dt_s`),
 /// each segment signed by its step and less its mean over the 10 samples before the step.
@@ -326,7 +326,7 @@ pub fn ringing(y: &[f64], acc: &[f64], dt_s: f64, window_s: f64) -> Option<Ringi
     let mut next_free = PRE;
     for (i, d) in steps.iter().enumerate() {
         let e = i + 1;
-        if d.abs() < STEP_SHARE * biggest || e < next_free || e + win > y.len() {
+        if d.abs() < RINGING_STEP_SHARE * biggest || e < next_free || e + win > y.len() {
             continue;
         }
         next_free = e + win;
