@@ -921,13 +921,13 @@ fn lasting_steps(ranked: &mut [(Fitted, Scores)]) {
             && f.evidence.figures.contains_key("steps")
             && s.fit_shrink >= STEPS_FIT_SHRINK
         {
-            s.significant = true;
-            s.score = s
-                .score
-                .max(s.fit_shrink - PENALTY_WITH_SIGNATURE * f.n_params as f64);
-            f.note = format!(
-                "counted by the fitting part: the steps take {:.0} % of its residual away",
-                100.0 * s.fit_shrink
+            count_by_fitting_part(
+                f,
+                s,
+                format!(
+                    "counted by the fitting part: the steps take {:.0} % of its residual away",
+                    100.0 * s.fit_shrink
+                ),
             );
             if s.shrink < 0.0 {
                 f.note += &format!(
@@ -988,14 +988,21 @@ fn compliance_unseen_in_holdout(ctx: &Context, ranked: &mut [(Fitted, Scores)]) 
     if holdout_acc_steps(ctx) > 0 {
         return;
     }
+    let note = format!(
+        "counted by the fitting part ({:.0} % of its residual): the held-out part holds none of the acceleration steps that excite a payload",
+        100.0 * s.fit_shrink
+    );
+    count_by_fitting_part(f, s, note);
+}
+
+/// Marks `f` found by what it takes away of the fitting part (its held-out part cannot
+/// judge it), scored at least by that shrink less the per-parameter penalty.
+fn count_by_fitting_part(f: &mut Fitted, s: &mut Scores, note: String) {
     s.significant = true;
     s.score = s
         .score
         .max(s.fit_shrink - PENALTY_WITH_SIGNATURE * f.n_params as f64);
-    f.note = format!(
-        "counted by the fitting part ({:.0} % of its residual): the held-out part holds none of the acceleration steps that excite a payload",
-        100.0 * s.fit_shrink
-    );
+    f.note = note;
 }
 
 /// Coulomb and stroke friction whose held-out scores lie this close …
