@@ -132,7 +132,27 @@ pub fn run(
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
         trace_round(selected.len(), &round);
-        let Some((f, s)) = round.into_iter().next().filter(|(_, s)| s.significant) else {
+        if !round.first().is_some_and(|(_, s)| s.significant) {
+            // Nothing more is found; a joint fit of this round may still have found the
+            // earlier effects and the ratios a better fit (see `candidates::best_without`),
+            // which the final re-fit starts from (808 case_061: a sine disturbance's
+            // held-out shrink 88.8 → 94.6 %).
+            if deferred.is_empty()
+                && let Some(f) =
+                    candidates::best_without(eng, &base_eval, round.iter().map(|(f, _)| f))
+            {
+                take_refitted(&mut selected, &f.sel_theta);
+                if let Some((last, _)) = selected.last_mut() {
+                    last.ratios.clone_from(&f.ratios);
+                }
+                if let Some((c, e)) = &f.without {
+                    base = c.clone();
+                    base_eval = e.clone();
+                }
+            }
+            break;
+        }
+        let Some((f, s)) = round.into_iter().next() else {
             break;
         };
         if proven_only(&f) {

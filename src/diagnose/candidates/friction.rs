@@ -487,6 +487,7 @@ pub fn fit_film(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, Diagnose
         refit: false,
         sel_theta: vec![],
         ratios: ctx.ratios.to_vec(),
+        without: None,
     }))
 }
 

@@ -405,6 +405,7 @@ pub(super) fn fitted(ctx: &Context, m: Made, ev: Evidence) -> Fitted {
         evidence: ev,
         refit: false,
         sel_theta: vec![],
+        without: None,
     }
 }
 
@@ -715,5 +716,6 @@ pub fn fit_hardening(ctx: &Context, linear: &Fitted) -> Result<Option<Fitted>, D
         refit: false,
         sel_theta: linear.sel_theta.clone(),
         ratios: linear.ratios.clone(),
+        without: linear.without.clone(),
     }))
 }
