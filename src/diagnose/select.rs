@@ -110,13 +110,7 @@ pub fn run(
             .collect();
         let sig = Signals::new(eng, &base_eval);
         let applied = in_base(&selected);
-        // The calibration ratios of the base: those of the last effect in it (a deferred
-        // effect's fit may have moved them, but its model is not the base).
-        let ratios = selected
-            .iter()
-            .rev()
-            .find(|(f, _)| !proven_only(f))
-            .map_or(ratios0.clone(), |(f, _)| f.ratios.clone());
+        let ratios = base_ratios(&selected, &ratios0);
         let ctx = Context {
             eng,
             nominal,
@@ -126,29 +120,16 @@ pub fn run(
             cal,
             ratios: &ratios,
             sig: &sig,
-            play_found: selected
-                .iter()
-                .any(|(f, _)| matches!(f.effect, Effect::Backlash | Effect::BacklashAsymmetry)),
+            play_found: play_found(&selected),
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
         trace_round(selected.len(), &round);
         if !round.first().is_some_and(|(_, s)| s.significant) {
-            // Nothing more is found; a joint fit of this round may still have found the
-            // earlier effects and the ratios a better fit (see `candidates::best_without`),
-            // which the final re-fit starts from (808 case_061: a sine disturbance's
-            // held-out shrink 88.8 → 94.6 %).
             if deferred.is_empty()
-                && let Some(f) =
-                    candidates::best_without(eng, &base_eval, round.iter().map(|(f, _)| f))
+                && let Some((c, e)) = take_better_refit(eng, &base_eval, &round, &mut selected)
             {
-                take_refitted(&mut selected, &f.sel_theta);
-                if let Some((last, _)) = selected.last_mut() {
-                    last.ratios.clone_from(&f.ratios);
-                }
-                if let Some((c, e)) = &f.without {
-                    base = c.clone();
-                    base_eval = e.clone();
-                }
+                base = c;
+                base_eval = e;
             }
             break;
         }
@@ -182,6 +163,43 @@ pub fn run(
         final_ratios: j.ratios,
         final_params: j.params,
     })
+}
+
+/// Whether play (backlash, either kind) is among the selected effects.
+fn play_found(selected: &[(Fitted, Scores)]) -> bool {
+    selected
+        .iter()
+        .any(|(f, _)| matches!(f.effect, Effect::Backlash | Effect::BacklashAsymmetry))
+}
+
+/// The calibration ratios of the base: those of the last selected effect in it (a deferred
+/// effect's fit may have moved them, but its model is not the base), else the
+/// calibration's `ratios0`.
+fn base_ratios(selected: &[(Fitted, Scores)], ratios0: &[f64]) -> Vec<f64> {
+    selected
+        .iter()
+        .rev()
+        .find(|(f, _)| !proven_only(f))
+        .map_or_else(|| ratios0.to_vec(), |(f, _)| f.ratios.clone())
+}
+
+/// When a round found nothing more: a joint fit of the round may still have found the
+/// earlier effects and the ratios a better fit (see [`candidates::best_without`]). The
+/// selected effects take its parameters and ratios, and its model is returned as the base
+/// the final re-fit starts from (808 case_061: a sine disturbance's held-out shrink
+/// 88.8 → 94.6 %).
+fn take_better_refit(
+    eng: &Engine,
+    base_eval: &Eval,
+    round: &[(Fitted, Scores)],
+    selected: &mut [(Fitted, Scores)],
+) -> Option<(Cand, Eval)> {
+    let f = candidates::best_without(eng, base_eval, round.iter().map(|(f, _)| f))?;
+    take_refitted(selected, &f.sel_theta);
+    if let Some((last, _)) = selected.last_mut() {
+        last.ratios.clone_from(&f.ratios);
+    }
+    f.without.clone()
 }
 
 /// The selected effects the base holds (those proven by their signature alone wait for the
