@@ -934,3 +934,14 @@ fn a_second_effect_is_not_credited_with_a_refit_of_the_first() {
         assert_eq!(r.selected, ["constant_force"], "case {i}: {:?}", r.selected);
     }
 }
+
+#[test]
+fn a_lag_reading_that_names_a_delay_is_the_skew_again() {
+    // Clean record 11 of the independent seed 1111, its command logged one sample early
+    // (standard case 87). Read as a lag of the responses, a one-sample command delay took
+    // it, a viscous term beside it took a little more, and that reading was kept: a false
+    // alarm. A delay of one sample is the realignment by another name.
+    let (hidden, r) = standard_case(1111, 87);
+    assert!(hidden.is_empty(), "case 87 is clean: {hidden:?}");
+    assert_eq!(r.verdict, "none", "{:#?}", r.ranking);
+}
