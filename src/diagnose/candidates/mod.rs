@@ -904,11 +904,14 @@ fn merge_springs(ctx: &Context, r: Vec<(usize, SpringJob, Fitted)>) -> Vec<(usiz
     out
 }
 
-/// Rough cost of fitting `e`, in replays: the scheduling order of [`fit_all`].
+/// Rough cost of fitting `e`: the scheduling order of [`fit_all`] (longest first). From each
+/// fit's wall time (`AXB_TIME=1`) on the 60 s record of `bench --diagnose 60000`: a play's
+/// fits (three starts, a switching replay) and a compliance's are the slowest.
 fn fit_weight(e: Effect) -> u32 {
     match e {
-        Effect::Compliance | Effect::StrokeFriction => 3,
-        Effect::ThermalGrowth | Effect::BacklashAsymmetry | Effect::StribeckFriction => 2,
+        Effect::Compliance | Effect::BacklashAsymmetry => 4,
+        Effect::Backlash | Effect::StrokeFriction => 3,
+        Effect::ThermalGrowth | Effect::StribeckFriction | Effect::CommandDelay => 2,
         _ => 1,
     }
 }
