@@ -202,6 +202,15 @@ fn dtft_power(y: &[f64], omega: f64) -> f64 {
     acc.norm_sqr()
 }
 
+/// The least-squares line y ≈ a + b·x through the points: (a, b); None with fewer than two
+/// points or an x that does not vary.
+pub fn line_fit(x: &[f64], y: &[f64]) -> Option<(f64, f64)> {
+    let n = x.len().min(y.len());
+    let f = lstsq(n, 2, |i, j| if j == 0 { 1.0 } else { x[i] }, y)?;
+    let (a, b) = (f.coef[0], f.coef[1]);
+    (a.is_finite() && b.is_finite() && f.var_unit[1].is_finite()).then_some((a, b))
+}
+
 /// Least-squares solution of a small problem.
 struct LsFit {
     coef: Vec<f64>,

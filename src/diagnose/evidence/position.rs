@@ -39,6 +39,24 @@ pub struct PositionPeriodic {
     pub explained: f64,
 }
 
+impl PositionPeriodic {
+    /// The fitted value at position `x_m`: the harmonics, the offset and the slope.
+    pub fn at(&self, x_m: f64) -> f64 {
+        let ph = TAU * x_m / self.period_m;
+        let harmonics: f64 = self
+            .sin
+            .iter()
+            .zip(&self.cos)
+            .enumerate()
+            .map(|(k, (s, c))| {
+                let (sk, ck) = ((k + 1) as f64 * ph).sin_cos();
+                s * sk + c * ck
+            })
+            .sum();
+        harmonics + self.offset + self.slope_per_m * x_m
+    }
+}
+
 /// y sampled along a path x (non-uniform, revisiting positions): averages y in position
 /// bins (width min_period_m/16, at most [`POS_BINS`] bins), interpolates empty bins,
 /// removes a cubic trend (slow bows would leak into the longest periods), finds the period in [min_period_m, max_period_m] (at most half the travelled range) from the
