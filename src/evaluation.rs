@@ -47,6 +47,8 @@ pub struct Outcome {
     pub evidence: Vec<String>,
     /// The truth's parameters, for the case line.
     pub truth_params: String,
+    /// The channel skew the diagnosis found (a measurement finding), e.g. `force-1.00`.
+    pub found_skew: String,
 }
 
 impl Outcome {
@@ -186,6 +188,13 @@ fn outcome(p: &Prepared, r: &Report) -> Outcome {
             .map(|e| format!("{}: {}", e.effect, e.evidence))
             .collect(),
         truth_params: p.truth_params.clone(),
+        found_skew: r.calibration.skew.map_or("none".to_owned(), |s| {
+            format!(
+                "{}{:+.2}",
+                format!("{:?}", s.channel).to_lowercase(),
+                s.samples
+            )
+        }),
     }
 }
 
@@ -256,7 +265,7 @@ pub fn run(
 /// One case as a line of the evaluation log.
 pub fn case_line(o: &Outcome) -> String {
     format!(
-        "{:<10} hidden={:<44}{} verdict={:<34} selected={:<44} shrink={:>5.1}% ranked {} | {}",
+        "{:<10} hidden={:<44}{} verdict={:<34} selected={:<44} shrink={:>5.1}% ranked {} | {} | found skew {}",
         o.name,
         if o.hidden.is_empty() {
             "none".to_owned()
@@ -272,7 +281,8 @@ pub fn case_line(o: &Outcome) -> String {
         },
         o.shrink * 100.0,
         o.ranked.join(" "),
-        o.truth_params
+        o.truth_params,
+        o.found_skew
     )
 }
 

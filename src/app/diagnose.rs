@@ -266,6 +266,9 @@ fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
     if !c.lag_reading.is_empty() {
         ui.label(format!("Lag: {}", c.lag_reading));
     }
+    if let Some(note) = c.refit_note() {
+        ui.label(format!("Shifts: {note}"));
+    }
     ui.horizontal(|ui| {
         ui.strong(format!("Verdict: {}", rep.verdict));
         if rep.verdict == "none" {

@@ -157,6 +157,9 @@ fn print_calibration(r: &Report) {
     if !c.lag_reading.is_empty() {
         say!("  {}", c.lag_reading);
     }
+    if let Some(note) = c.refit_note() {
+        say!("  ({note})");
+    }
     say!(
         "  common lag of position and force behind the model: {:.2} samples ({:+.3} ms)",
         -c.common_lag_samples,
@@ -326,7 +329,7 @@ pub fn bench(samples: usize) -> Result<()> {
     )?;
     let secs = t0.elapsed().as_secs_f64();
     say!(
-        "diagnose samples={} candidates={} hidden={} verdict={} readings={} seconds={:.2}",
+        "diagnose samples={} candidates={} hidden={} verdict={} readings={} passes={} seconds={:.2}",
         case.record.len(),
         rep.ranking.len(),
         case.hidden.join("+"),
@@ -337,6 +340,8 @@ pub fn bench(samples: usize) -> Result<()> {
         } else {
             2
         },
+        // Two when the shifts, fitted again beside the effects found, named another skew.
+        1 + usize::from(rep.calibration.refit.is_some()),
         secs
     );
     Ok(())

@@ -418,52 +418,60 @@ pub fn diagnose(
         eng0: &eng0,
         nom_eval: &nom_eval,
     };
-    let Some(unaligned) = cal.lag_instead_of_skew() else {
-        let (report, _) = stage.run(cal, progress)?;
-        (progress.report)(1.0, "done");
-        return Ok(report);
-    };
-    // A lag of one whole sample is the command logged a sample early, or the lag of a force
-    // the model lacks (a large viscous or stroke friction makes the loop follow late): the
-    // two readings are diagnosed each, and the realigned one is kept unless the other
-    // leaves clearly less of the held-out part.
-    let first = |f: f64, s: &str| (progress.report)(0.02 + 0.49 * f, s);
-    let second = |f: f64, s: &str| (progress.report)(0.51 + 0.49 * f, s);
-    let (aligned, j_aligned) = stage.run(
-        cal,
+    let first = |f: f64, s: &str| (progress.report)(0.02 + 0.68 * f, s);
+    let (report, j_first, final_cand) = stage.readings(
+        cal.clone(),
         &Progress {
             report: &first,
             cancel: progress.cancel,
         },
     )?;
-    let (lagging, j_lagging) = stage.run(
-        unaligned,
+    // The shifts were fitted before any effect, against a model that lacks what the record
+    // holds: a large friction moves them (a lead read as the command logged late, a skew
+    // not seen). Fitted again with the effects found, they are trusted over the first
+    // estimate when the two disagree, and the effects are selected again on that reading.
+    // A lag of one whole sample was diagnosed in both its readings already.
+    let Some(mut found) = final_cand.filter(|_| report.calibration.lag_reading.is_empty()) else {
+        (progress.report)(1.0, "done");
+        return Ok(report);
+    };
+    // A command delay is a common shift by another name: fitted again beside it, the
+    // shifts would read what the delay overshoots as the command logged late.
+    found.model.delay_s = 0.0;
+    let again = calibrate::fit_again(&eng0, &found, &cal)?;
+    if !calibrate::skews_differ(report.calibration.skew, again.skew) {
+        (progress.report)(1.0, "done");
+        return Ok(report);
+    }
+    let first_skew = report.calibration.skew;
+    let mut second_cal = cal;
+    second_cal.skew = again.skew;
+    second_cal.common_lag_samples = again.common_lag_samples;
+    second_cal.pos_shift_samples = again.pos_shift_samples;
+    second_cal.force_shift_samples = again.force_shift_samples;
+    let second = |f: f64, s: &str| (progress.report)(0.7 + 0.3 * f, s);
+    let (second_report, j_second, _) = stage.readings(
+        second_cal,
         &Progress {
             report: &second,
             cancel: progress.cancel,
         },
     )?;
     (progress.report)(1.0, "done");
-    // A lag reading that names a command delay first has found the skew under another
-    // name: it is the friction that the realignment would hide that it exists for (seed
-    // 1111 case_011 skewed, a clean record: a one-sample delay and a viscous term beside it
-    // left less than 0.9× of what the realigned reading left, and the verdict was a delay).
-    let lag_found_force = lagging.verdict != Effect::CommandDelay.name();
-    let (mut kept, other, j_kept, j_other) =
-        if lag_found_force && j_lagging < LAG_OVER_SKEW * j_aligned {
-            (
-                lagging,
-                "the command logged a sample early",
-                j_lagging,
-                j_aligned,
-            )
-        } else {
-            (aligned, "a lag of the responses", j_aligned, j_lagging)
-        };
-    kept.calibration.lag_reading = format!(
-        "a one-sample lag, also diagnosed as {other}: that reading left {:.3} of the held-out part against {:.3}",
-        j_other, j_kept
-    );
+    // Neither reading is sure (the second fits beside effects that were fitted on the first
+    // alignment): the one that leaves less of the held-out part is kept.
+    let kept_second = j_second < j_first;
+    let (mut kept, other) = if kept_second {
+        (second_report, first_skew)
+    } else {
+        (report, second_report.calibration.skew)
+    };
+    kept.calibration.refit = Some(calibrate::ShiftRefit {
+        other,
+        kept_second,
+        j_first,
+        j_second,
+    });
     Ok(kept)
 }
 
@@ -488,13 +496,75 @@ struct Stage<'a> {
 }
 
 impl Stage<'_> {
+    /// Diagnoses one calibration: as it is, or, for a lag of one whole sample, both of its
+    /// readings (see below). Also returns the kept reading's final model when it selected
+    /// an effect.
+    fn readings(
+        &self,
+        cal: calibrate::Calibration,
+        progress: &Progress,
+    ) -> Result<(Report, f64, Option<engine::Cand>), DiagnoseError> {
+        let Some(unaligned) = cal.lag_instead_of_skew() else {
+            return self.run(cal, progress);
+        };
+        // A lag of one whole sample is the command logged a sample early, or the lag of a
+        // force the model lacks (a large viscous or stroke friction makes the loop follow
+        // late): the two readings are diagnosed each, and the realigned one is kept unless
+        // the other leaves clearly less of the held-out part.
+        let first = |f: f64, s: &str| (progress.report)(0.49 * f, s);
+        let second = |f: f64, s: &str| (progress.report)(0.49 + 0.51 * f, s);
+        let (aligned, j_aligned, cand_aligned) = self.run(
+            cal,
+            &Progress {
+                report: &first,
+                cancel: progress.cancel,
+            },
+        )?;
+        let (lagging, j_lagging, cand_lagging) = self.run(
+            unaligned,
+            &Progress {
+                report: &second,
+                cancel: progress.cancel,
+            },
+        )?;
+        // A lag reading that names a command delay first has found the skew under another
+        // name: it is the friction that the realignment would hide that it exists for (seed
+        // 1111 case_011 skewed, a clean record: a one-sample delay and a viscous term beside
+        // it left less than 0.9× of what the realigned reading left, and the verdict was a
+        // delay).
+        let lag_found_force = lagging.verdict != Effect::CommandDelay.name();
+        let (mut kept, other, j_kept, j_other, cand) =
+            if lag_found_force && j_lagging < LAG_OVER_SKEW * j_aligned {
+                (
+                    lagging,
+                    "the command logged a sample early",
+                    j_lagging,
+                    j_aligned,
+                    cand_lagging,
+                )
+            } else {
+                (
+                    aligned,
+                    "a lag of the responses",
+                    j_aligned,
+                    j_lagging,
+                    cand_aligned,
+                )
+            };
+        kept.calibration.lag_reading = format!(
+            "a one-sample lag, also diagnosed as {other}: that reading left {:.3} of the held-out part against {:.3}",
+            j_other, j_kept
+        );
+        Ok((kept, j_kept, cand))
+    }
+
     /// Realigns a skewed channel, re-fits the ratios, selects the effects and builds the
     /// report; also returns the final held-out criterion in the nominal's normalisation.
     fn run(
         &self,
         mut cal: calibrate::Calibration,
         progress: &Progress,
-    ) -> Result<(Report, f64), DiagnoseError> {
+    ) -> Result<(Report, f64, Option<engine::Cand>), DiagnoseError> {
         let (main_d, val_d) = match &cal.skew {
             Some(s) => (
                 calibrate::deskew(self.main, s),
@@ -530,6 +600,7 @@ impl Stage<'_> {
             &outcome.final_eval.hold_pos,
             outcome.final_eval.hold_force.as_deref(),
         );
+        let cand = (!outcome.selected.is_empty()).then(|| outcome.final_cand.clone());
         let report = report::build(
             self.preset,
             &eng,
@@ -541,7 +612,7 @@ impl Stage<'_> {
                 base_axis: base_axis_of(self.preset, &self.main.axis),
             },
         );
-        Ok((report, j_final))
+        Ok((report, j_final, cand))
     }
 }
 
