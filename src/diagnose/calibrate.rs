@@ -386,9 +386,8 @@ fn fit_ratios(
 /// position residual and hide what a skew does during the moves.
 ///
 /// With an earlier reading (`prior`, fitted before the effects were found), the shifts must
-/// also explain that much more than the earlier ones do on the same replay: seed 808's
-/// skewed case_013 (force one sample early, a Coulomb friction) read no skew first and a
-/// position skew of −1.8 samples beside the friction, which explained 6 % more.
+/// also explain that much more than the earlier ones do on the same replay, or the earlier
+/// ones stay: a second diagnosis on a reading that is hardly better is not run.
 fn judge_shifts(
     eng: &Engine,
     cache: &RefCell<Option<(Vec<f64>, SimOut)>>,
