@@ -65,6 +65,15 @@ pub struct Progress<'a> {
 }
 
 impl Progress<'_> {
+    /// Runs `f` with a progress that reports into [`lo`, `lo + span`] of this one.
+    fn within<R>(&self, lo: f64, span: f64, f: impl FnOnce(&Progress) -> R) -> R {
+        let report = |x: f64, s: &str| (self.report)(lo + span * x, s);
+        f(&Progress {
+            report: &report,
+            cancel: self.cancel,
+        })
+    }
+
     fn check(&self) -> Result<(), DiagnoseError> {
         if self.cancel.load(Ordering::Relaxed) {
             Err(DiagnoseError::Cancelled)
@@ -418,14 +427,8 @@ pub fn diagnose(
         eng0: &eng0,
         nom_eval: &nom_eval,
     };
-    let first = |f: f64, s: &str| (progress.report)(0.02 + 0.68 * f, s);
-    let (report, j_first, final_cand) = stage.readings(
-        cal.clone(),
-        &Progress {
-            report: &first,
-            cancel: progress.cancel,
-        },
-    )?;
+    let (report, j_first, final_cand) =
+        progress.within(0.02, 0.68, |p| stage.readings(cal.clone(), p))?;
     // The shifts were fitted before any effect, against a model that lacks what the record
     // holds: a large friction moves them (a lead read as the command logged late, a skew
     // not seen). Fitted again with the effects found, they are trusted over the first
@@ -449,14 +452,8 @@ pub fn diagnose(
     second_cal.common_lag_samples = again.common_lag_samples;
     second_cal.pos_shift_samples = again.pos_shift_samples;
     second_cal.force_shift_samples = again.force_shift_samples;
-    let second = |f: f64, s: &str| (progress.report)(0.7 + 0.3 * f, s);
-    let (second_report, j_second, _) = stage.readings(
-        second_cal,
-        &Progress {
-            report: &second,
-            cancel: progress.cancel,
-        },
-    )?;
+    let (second_report, j_second, _) =
+        progress.within(0.7, 0.3, |p| stage.readings(second_cal, p))?;
     (progress.report)(1.0, "done");
     // Neither reading is sure (the second fits beside effects that were fitted on the first
     // alignment): the one that leaves less of the held-out part is kept. Seed 808's skewed
@@ -514,22 +511,10 @@ impl Stage<'_> {
         // force the model lacks (a large viscous or stroke friction makes the loop follow
         // late): the two readings are diagnosed each, and the realigned one is kept unless
         // the other leaves clearly less of the held-out part.
-        let first = |f: f64, s: &str| (progress.report)(0.49 * f, s);
-        let second = |f: f64, s: &str| (progress.report)(0.49 + 0.51 * f, s);
-        let (aligned, j_aligned, cand_aligned) = self.run(
-            cal,
-            &Progress {
-                report: &first,
-                cancel: progress.cancel,
-            },
-        )?;
-        let (lagging, j_lagging, cand_lagging) = self.run(
-            unaligned,
-            &Progress {
-                report: &second,
-                cancel: progress.cancel,
-            },
-        )?;
+        let (aligned, j_aligned, cand_aligned) =
+            progress.within(0.0, 0.49, |p| self.run(cal, p))?;
+        let (lagging, j_lagging, cand_lagging) =
+            progress.within(0.49, 0.51, |p| self.run(unaligned, p))?;
         // A lag reading that names a command delay first has found the skew under another
         // name: it is the friction that the realignment would hide that it exists for (seed
         // 1111 case_011 skewed, a clean record: a one-sample delay and a viscous term beside
