@@ -409,7 +409,7 @@ fn trace_round(k: usize, r: &[(Fitted, Scores)]) {
             s.significant,
             f.evidence.pass,
             f.note,
-            f.evidence.text.chars().take(160).collect::<String>(),
+            f.evidence.text.chars().take(400).collect::<String>(),
             f.theta,
             s.fit_shrink
         );

@@ -26,7 +26,7 @@ pub use drift::{Drift, drift};
 pub use grid::{Grid, grid};
 pub use lag::{Lag, lag};
 pub use periodic::{Periodic, WaveShape, periodic_in_time};
-pub use position::{PositionPeriodic, periodic_in_position};
+pub use position::{PositionPeriodic, periodic_in_position, refit_at_period, sharpen_period};
 pub use regress::{Regression, regress};
 pub use resonance::{RINGING_STEP_SHARE, Resonance, Ringing, Tone, resonance, ringing, tone};
 pub use steps::{Burst, Step, bursts, steps};
