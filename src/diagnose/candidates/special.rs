@@ -253,14 +253,9 @@ fn ringing(ctx: &Context, y: &[f64], dt: f64) -> Evidence {
         Some(r) if -r.dip_t >= RINGING_T.0 && r.rise_t >= RINGING_T.1 && ctx.sig.r_force.is_some() => Evidence {
             pass: true,
             text: format!(
-                "the force residual rings after the command's {} acceleration steps: {:.2} N at {:.0} ms ({:.0} standard errors), then {:+.2} N at {:.0} ms ({:.0}), as a payload on a spring makes it",
+                "the force residual rings after the command's {} acceleration steps: {}, as a payload on a spring makes it",
                 r.events,
-                r.dip,
-                crate::units::s_to_ms(r.dip_s),
-                -r.dip_t,
-                r.rise,
-                crate::units::s_to_ms(r.rise_s),
-                r.rise_t
+                ringing_figures(&r)
             ),
             ..Evidence::default()
         }
@@ -270,17 +265,25 @@ fn ringing(ctx: &Context, y: &[f64], dt: f64) -> Evidence {
         .with("ringing_rise_t", r.rise_t)
         .with("ringing_steps", r.events as f64),
         Some(r) => Evidence::absent(format!(
-            "no resonance in the residual's spectrum, and no ringing after the command's {} acceleration steps: the force residual dips {:.2} N at {:.0} ms ({:.1} standard errors), then {:+.2} N at {:.0} ms ({:.1})",
+            "no resonance in the residual's spectrum, and no ringing after the command's {} acceleration steps: the force residual dips {}",
             r.events,
-            r.dip,
-            crate::units::s_to_ms(r.dip_s),
-            -r.dip_t,
-            r.rise,
-            crate::units::s_to_ms(r.rise_s),
-            r.rise_t
+            ringing_figures(&r)
         )),
         None => Evidence::absent("no resonance in the residual's spectrum, and no ringing after the acceleration steps"),
     }
+}
+
+/// The dip and the overshoot of a [`evidence::Ringing`], in words.
+fn ringing_figures(r: &evidence::Ringing) -> String {
+    format!(
+        "{:.2} N at {:.0} ms ({:.1} standard errors), then {:+.2} N at {:.0} ms ({:.1})",
+        r.dip,
+        crate::units::s_to_ms(r.dip_s),
+        -r.dip_t,
+        r.rise,
+        crate::units::s_to_ms(r.rise_s),
+        r.rise_t
+    )
 }
 
 fn drift(ctx: &Context) -> Evidence {
