@@ -25,6 +25,9 @@ pub struct FrictionModel {
     pub coulomb_n: f64,
     /// Speed-proportional friction coefficient, N·s/m.
     pub viscous_n_s_per_m: f64,
+    /// Half the difference of the coefficients by direction, N·s/m: viscous + split moving
+    /// in +, viscous − split in − (see [`crate::preset::Friction`]).
+    pub viscous_split_n_s_per_m: f64,
     /// Whether the Stribeck term applies: breakaway friction above Coulomb at low speed.
     pub stribeck: bool,
     /// Breakaway (static) friction at zero speed when `stribeck` is on, N.
@@ -46,6 +49,10 @@ pub struct Body {
     /// h/m · 1/(1 + h·c/m): velocity change per kinetic friction force after the viscous
     /// step.
     pub kin_per_n: f64,
+    /// When the viscous coefficient differs by direction: [`Body::visc_inv`] and
+    /// [`Body::kin_per_n`] of the − coefficient, then the coefficients (+, −), N·s/m (the
+    /// two fields above then hold the + coefficient's). None when it does not.
+    pub neg: Option<(f64, f64, [f64; 2])>,
 }
 
 impl FrictionModel {
@@ -56,6 +63,7 @@ impl FrictionModel {
             enabled: f.enabled,
             coulomb_n: f.coulomb_n,
             viscous_n_s_per_m: f.viscous_n_s_per_m,
+            viscous_split_n_s_per_m: f.viscous_split_n_s_per_m,
             stribeck: f.stribeck.enabled,
             static_n: f.stribeck.static_n,
             stribeck_mps: units::mm_per_s_to_m_per_s(f.stribeck.velocity_mm_per_s),
@@ -88,12 +96,22 @@ impl FrictionModel {
     /// Step constants for a body of mass `m_kg` and step `h_s`, so that the per-step update
     /// has no divisions (they dominate the latency of this serial chain).
     pub fn body(&self, m_kg: f64, h_s: f64) -> Body {
-        let visc_inv = 1.0 / (1.0 + h_s * self.viscous_n_s_per_m / m_kg);
+        let split = self.viscous_split_n_s_per_m;
+        let visc_inv_at = |c: f64| 1.0 / (1.0 + h_s * c / m_kg);
+        let (c_pos, c_neg) = (
+            self.viscous_n_s_per_m + split,
+            self.viscous_n_s_per_m - split,
+        );
+        let visc_inv = visc_inv_at(c_pos);
         Body {
             h_over_m: h_s / m_kg,
             m_over_h: m_kg / h_s,
             visc_inv,
             kin_per_n: h_s / m_kg * visc_inv,
+            neg: (split != 0.0).then(|| {
+                let inv = visc_inv_at(c_neg);
+                (inv, h_s / m_kg * inv, [c_pos, c_neg])
+            }),
         }
     }
 
@@ -133,6 +151,9 @@ impl FrictionModel {
         } else {
             (self.coulomb_n, self.coulomb_n)
         };
+        if let Some(neg) = &body.neg {
+            return self.finish_split(body, neg, v_free, fk, f_static);
+        }
         let kin = body.kin_per_n * fk;
         let f_stop = -body.m_over_h * v_free;
         if f_stop.abs() <= f_static {
@@ -143,6 +164,38 @@ impl FrictionModel {
             return (0.0, f_stop);
         }
         (v_new, -fk.copysign(v_free) - self.viscous_n_s_per_m * v_new)
+    }
+
+    /// The end of [`FrictionModel::step`] with a viscous coefficient that differs by
+    /// direction (`neg`, see [`Body::neg`]). Apart, so that the common step stays as short
+    /// as it was: a branch inside it cost a fifth of the loop's throughput. The coefficient
+    /// is the one of the direction the body would move in without friction: friction cannot
+    /// reverse it within the step (that is a stop, above and below).
+    #[cold]
+    #[inline(never)]
+    fn finish_split(
+        &self,
+        body: &Body,
+        neg: &(f64, f64, [f64; 2]),
+        v_free: f64,
+        fk: f64,
+        f_static: f64,
+    ) -> (f64, f64) {
+        let f_stop = -body.m_over_h * v_free;
+        if f_stop.abs() <= f_static {
+            return (0.0, f_stop);
+        }
+        let (visc_inv, kin_per_n, c) = if v_free >= 0.0 {
+            (body.visc_inv, body.kin_per_n, neg.2[0])
+        } else {
+            (neg.0, neg.1, neg.2[1])
+        };
+        let kin = kin_per_n * fk;
+        let v_new = v_free * visc_inv - kin.copysign(v_free);
+        if v_new * v_free <= 0.0 {
+            return (0.0, f_stop);
+        }
+        (v_new, -fk.copysign(v_free) - c * v_new)
     }
 }
 

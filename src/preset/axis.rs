@@ -189,6 +189,13 @@ pub struct Friction {
     pub coulomb_n: f64,
     /// Viscous friction per table speed, N·s/m.
     pub viscous_n_s_per_m: f64,
+    /// Half the difference of the viscous coefficients by direction, N·s/m: moving in +
+    /// the coefficient is `viscous_n_s_per_m` + split, in − it is `viscous_n_s_per_m` −
+    /// split. A wiper or a seal that drags more one way than the other does this; a
+    /// symmetric viscous term cannot, and a constant force only at one feed. 0 (the
+    /// default) is the same both ways.
+    #[serde(default)]
+    pub viscous_split_n_s_per_m: f64,
     /// Breakaway friction above the Coulomb level at low speed.
     pub stribeck: Stribeck,
     /// Friction rise over repeated short strokes.
@@ -651,6 +658,12 @@ impl Fields for Friction {
                 &mut self.viscous_n_s_per_m,
                 Num::closed("N*s/m", 0.0, 1e8),
             );
+            w.num(
+                "viscous_split_n_s_per_m",
+                "viscous split (+/-)",
+                &mut self.viscous_split_n_s_per_m,
+                Num::closed("N*s/m", -1e8, 1e8),
+            );
             w.nest("stribeck", |w| {
                 w.flag("enabled", "Stribeck on", &mut self.stribeck.enabled);
                 w.when(self.stribeck.enabled, |w| {
@@ -713,6 +726,17 @@ impl Fields for Friction {
     }
 
     fn rules(&self, at: &str, out: &mut Vec<FieldError>) {
+        if self.enabled && self.viscous_split_n_s_per_m.abs() > self.viscous_n_s_per_m {
+            err(
+                out,
+                format!("{at}.viscous_split_n_s_per_m"),
+                format!(
+                    "a split of {} N*s/m around a viscous coefficient of {} N*s/m makes one direction's coefficient negative (a friction that pushes)",
+                    super::fields::short(self.viscous_split_n_s_per_m),
+                    super::fields::short(self.viscous_n_s_per_m)
+                ),
+            );
+        }
         if self.stribeck.enabled && self.stribeck.static_n < self.coulomb_n {
             err(
                 out,

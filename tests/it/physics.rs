@@ -100,6 +100,42 @@ fn torque_offset_at_constant_velocity_equals_coulomb() {
 }
 
 #[test]
+fn a_viscous_split_drags_more_one_way_by_exactly_twice_the_split() {
+    // Coulomb 100 N, viscous 800 ± 300 N·s/m, at 50 mm/s each way: the slide's friction
+    // is 100 + 1100·0.05 = 155 N moving +, 100 + 500·0.05 = 125 N moving −. Without the
+    // split both are 140 N (the default path, unchanged).
+    let friction_at = |split: f64| {
+        let mut p = plain();
+        let a = &mut p.axes[0];
+        a.friction.enabled = true;
+        a.friction.coulomb_n = 100.0;
+        a.friction.viscous_n_s_per_m = 800.0;
+        a.friction.viscous_split_n_s_per_m = split;
+        a.friction.stribeck.enabled = false;
+        let m = run(&p, "G90 G01 X100. F3000\nX0.\nM30\n");
+        let tr = &m.trace;
+        let fric = col(tr, "x.friction");
+        let vel = col(tr, "x.vel");
+        // Mid-stroke of each move: 1.0 s (moving +) and 3.0 s (moving −).
+        let (kp, kn) = (at(tr, 1.0), at(tr, 3.0));
+        (fric[kp], vel[kp], fric[kn], vel[kn])
+    };
+    let (fp, vp, fn_, vn) = friction_at(300.0);
+    assert!(vp > 0.0 && vn < 0.0, "mid-stroke velocities {vp}, {vn}");
+    let want_p = -(100.0 + 1100.0 * vp);
+    let want_n = 100.0 - 500.0 * vn;
+    assert!(
+        (fp - want_p).abs() < 1e-6 && (fn_ - want_n).abs() < 1e-6,
+        "friction {fp} N moving + (want {want_p}), {fn_} N moving − (want {want_n})"
+    );
+    let (fp0, vp0, fn0, vn0) = friction_at(0.0);
+    assert!(
+        (fp0 + 100.0 + 800.0 * vp0).abs() < 1e-6 && (fn0 - 100.0 + 800.0 * vn0).abs() < 1e-6,
+        "no split: {fp0} N and {fn0} N"
+    );
+}
+
+#[test]
 fn uncompensated_backlash_loses_b_at_a_reversal() {
     let mut p = plain();
     let a = &mut p.axes[0];

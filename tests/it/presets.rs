@@ -79,6 +79,28 @@ fn nan_and_negative_physical_values_are_rejected() {
 }
 
 #[test]
+fn a_viscous_split_beyond_the_coefficient_is_refused_by_name() {
+    // 800 ± 900 N·s/m would be −100 N·s/m moving −: a friction that pushes.
+    let text = default_text().replace(
+        "viscous_n_s_per_m: 800.0,",
+        "viscous_n_s_per_m: 800.0,\n                viscous_split_n_s_per_m: -900.0,",
+    );
+    let e = invalid(&text);
+    assert!(
+        e.iter().any(
+            |m| m.contains("axes.x.friction.viscous_split_n_s_per_m") && m.contains("negative")
+        ),
+        "{e:?}"
+    );
+    // Within the coefficient it loads, and the default (absent) is no split.
+    let ok = text.replace("-900.0", "-300.0");
+    let p = Preset::from_ron(&ok, "split.ron").expect("a split within the coefficient loads");
+    assert_eq!(p.axes[0].friction.viscous_split_n_s_per_m, -300.0);
+    let d = Preset::from_ron(&default_text(), "default.ron").expect("default loads");
+    assert_eq!(d.axes[0].friction.viscous_split_n_s_per_m, 0.0);
+}
+
+#[test]
 fn periods_must_be_integer_multiples() {
     let e = invalid(&default_text().replace("t2_s: 0.001", "t2_s: 0.0007"));
     assert!(e.iter().any(|m| m.starts_with("timing.t1_s")), "{e:?}");

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use super::{Applied, Context, Evidence, Fitted, MIN_T};
 use crate::diagnose::DiagnoseError;
 use crate::diagnose::calibrate::{CalParam, MAX_RATIO_CHANGE};
-use crate::diagnose::effects::Effect;
+use crate::diagnose::effects::{Effect, ParamDef};
 use crate::diagnose::engine::Cand;
 use crate::diagnose::engine::corr_length;
 use crate::diagnose::evidence::{self, Regression};
@@ -198,10 +198,24 @@ fn linear(ctx: &Context, effect: Effect) -> Evidence {
         Effect::ConstantForce => vec![-c],
         _ => vec![c],
     };
-    Evidence {
+    let split = (effect == Effect::ViscousFriction)
+        .then(|| viscous_split(ctx))
+        .flatten();
+    if let Some((_, t_split)) = split
+        && t_split.abs() >= MIN_T
+    {
+        // No calibration ratio moves one direction's coefficient alone.
+        pass = true;
+    }
+    let split_text = split.map_or_else(String::new, |(s, t_s)| {
+        format!(
+            "; a speed term that keeps its sign both ways (a coefficient that differs by direction) {s:.3} n·s·per·m ({t_s:.1} standard errors)"
+        )
+    });
+    let mut ev = Evidence {
         pass,
         text: format!(
-            "{name} of the force residual {c:.3} {unit} ({t:.1} standard errors){why}",
+            "{name} of the force residual {c:.3} {unit} ({t:.1} standard errors){why}{split_text}",
             unit = unit.replace('_', "·")
         ),
         hint,
@@ -209,7 +223,22 @@ fn linear(ctx: &Context, effect: Effect) -> Evidence {
     }
     .with(&format!("coefficient_{unit}"), c)
     .with("t", t)
-    .with("explained_share", r.explained)
+    .with("explained_share", r.explained);
+    if let Some((s, t_s)) = split {
+        ev = ev.with("split_n_s_per_m", s).with("split_t", t_s);
+    }
+    ev
+}
+
+/// The speed term that keeps its sign both ways, |v|, regressed beside the base columns:
+/// a viscous coefficient that is larger moving + than moving − leaves c·v + split·|v| in
+/// the force residual, which neither a symmetric coefficient (v) nor a force (the constant
+/// column) takes. Its coefficient (the split, N·s/m) and its `t`.
+fn viscous_split(ctx: &Context) -> Option<(f64, f64)> {
+    let mut cols = base_columns(ctx);
+    cols.push(ctx.sig.vel_mps.iter().map(|v| v.abs()).collect());
+    let r = regress(ctx, &cols)?;
+    Some((r.coef[4], t_of(&r, 4)))
 }
 
 /// Stribeck: an extra force at low speed, falling off with a characteristic velocity,
@@ -488,6 +517,67 @@ pub fn fit_film(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, Diagnose
         sel_theta: vec![],
         ratios: ctx.ratios.to_vec(),
         without: None,
+    }))
+}
+
+/// The parameters of the viscous friction that differs by direction ([`fit_split`]): the
+/// correction of the mean coefficient (as [`Effect::params`] has it) and the split.
+const SPLIT_DEFS: [ParamDef; 2] = [
+    ParamDef {
+        key: "viscous_n_s_per_m",
+        lo: -1.0e5,
+        hi: 1.0e5,
+        init: 100.0,
+    },
+    ParamDef {
+        key: "split_n_s_per_m",
+        lo: -1.0e5,
+        hi: 1.0e5,
+        init: 100.0,
+    },
+];
+
+/// Gives `c` a viscous friction corrected by `th[0]` (N·s/m, as [`Effect::apply`] does) and
+/// split by direction by `th[1]` more (N·s/m: + drags by that much more than the mean,
+/// − by that much less). Each direction's coefficient stays ≥ 0.
+pub fn set_split(c: &mut Cand, th: &[f64]) {
+    let f = &mut c.model.axis.friction;
+    f.enabled = true;
+    f.viscous_n_s_per_m = (f.viscous_n_s_per_m + th[0]).max(0.0);
+    let max = f.viscous_n_s_per_m;
+    f.viscous_split_n_s_per_m = (f.viscous_split_n_s_per_m + th[1]).clamp(-max, max);
+}
+
+/// A viscous friction that differs by direction: the mean coefficient corrected and the
+/// split between the directions, from the evidence's |v| term, fitted as one coefficient
+/// is (the calibration ratios and the earlier effects move with it). The caller keeps it
+/// only when it leaves clearly less of the fitting part than one coefficient. None without
+/// a |v| term.
+pub fn fit_split(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, DiagnoseError> {
+    let Some(split0) = ev
+        .figures
+        .get("split_n_s_per_m")
+        .copied()
+        .filter(|_| ev.figures.get("split_t").is_some_and(|t| t.abs() >= MIN_T))
+    else {
+        return Ok(None);
+    };
+    let c0 = ev.hint.first().copied().unwrap_or(0.0);
+    let first = vec![vec![c0, split0], vec![0.0, split0]];
+    let fitted = ctx.fit_lm_defs(
+        Effect::ViscousFriction,
+        &SPLIT_DEFS,
+        first,
+        ev.clone(),
+        &|th| Applied::Split(th.to_vec()),
+        super::LM_PATIENCE,
+    )?;
+    Ok(fitted.map(|mut f| {
+        // Its two parameters are not [`Effect::params`]' one: the later rounds and the
+        // final joint fit keep them as fitted (as a film law's).
+        f.refit = false;
+        f.note = "a coefficient that differs by direction (it explained more of the fitting part than one coefficient)".into();
+        f
     }))
 }
 
