@@ -627,25 +627,32 @@ impl Context<'_, '_> {
             Effect::StrokeFriction => {
                 let film = friction::fit_film(self, &ev)?;
                 let count = self.fit_lm(effect, ev)?;
-                let fit_j = |f: &Fitted| self.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
-                Ok(match (count, film) {
-                    (Some(c), Some(f)) if fit_j(&f) < FILM_OVER_COUNT * fit_j(&c) => Some(f),
-                    (None, f) => f,
-                    (c, _) => c,
-                })
+                Ok(self.richer_if_better(count, film, FILM_OVER_COUNT))
             }
             Effect::Compliance => self.fit_compliance(ev),
             Effect::ViscousFriction => {
                 let split = friction::fit_split(self, &ev)?;
                 let one = self.fit_lm(effect, ev)?;
-                let fit_j = |f: &Fitted| self.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
-                Ok(match (one, split) {
-                    (Some(o), Some(s)) if fit_j(&s) < SPLIT_OVER_ONE * fit_j(&o) => Some(s),
-                    (None, s) => s,
-                    (o, _) => o,
-                })
+                Ok(self.richer_if_better(one, split, SPLIT_OVER_ONE))
             }
             _ => self.fit_lm(effect, ev),
+        }
+    }
+
+    /// Of two fits of one effect, the one with more parameters (`richer`) when it leaves
+    /// less than `ratio` of what `plain` leaves of the fitting part, else `plain`; either
+    /// when the other could not be fitted.
+    fn richer_if_better(
+        &self,
+        plain: Option<Fitted>,
+        richer: Option<Fitted>,
+        ratio: f64,
+    ) -> Option<Fitted> {
+        let fit_j = |f: &Fitted| self.eng.j(&f.eval.fit_pos, f.eval.fit_force.as_deref());
+        match (plain, richer) {
+            (Some(p), Some(r)) if fit_j(&r) < ratio * fit_j(&p) => Some(r),
+            (None, r) => r,
+            (p, _) => p,
         }
     }
 }
