@@ -292,11 +292,13 @@ enum ShiftFit {
 }
 
 /// Fits ratios and (see [`ShiftFit`]) the two channel shifts on the engine's fitting part.
+/// The ratios start from `from` (else 1).
 fn fit_ratios(
     eng: &Engine,
     base: &Cand,
     ps: &[CalParam],
     shift_fit: ShiftFit,
+    from: Option<&[f64]>,
 ) -> Result<(Vec<f64>, f64, f64), DiagnoseError> {
     let shifts = !matches!(shift_fit, ShiftFit::No);
     let n = ps.len();
@@ -352,7 +354,9 @@ fn fit_ratios(
         };
         Ok(Some(eng.lm_rows_shifted(s, up, uf)))
     };
-    let mut start = vec![1.0; n];
+    let mut start = from
+        .filter(|r| r.len() == n)
+        .map_or_else(|| vec![1.0; n], <[f64]>::to_vec);
     start.extend([0.0; N_NUISANCE]);
     if shifts {
         start.extend([0.0, 0.0]);
@@ -616,7 +620,7 @@ fn fit_with(
     shift_fit: ShiftFit,
 ) -> Result<Calibration, DiagnoseError> {
     let ps = CalParam::of(&nominal.model.axis);
-    let (ratios, up, uf) = fit_ratios(eng, nominal, &ps, shift_fit)?;
+    let (ratios, up, uf) = fit_ratios(eng, nominal, &ps, shift_fit, None)?;
     let (skew, common) = classify_shifts(up, eng.has_force.then_some(uf));
     let at_bound: Vec<CalParam> = ps
         .iter()
@@ -639,14 +643,18 @@ fn fit_with(
     })
 }
 
-/// Re-fits the ratios alone (after the skew is removed), starting from `cal`'s.
+/// Re-fits the ratios alone (after the skew is removed), starting from the nominal's, or
+/// from `cal`'s when `from_cal` (a second pass with other weights goes on from the first).
 pub fn refit_ratios(
     eng: &Engine,
     nominal: &Cand,
     cal: &mut Calibration,
+    from_cal: bool,
 ) -> Result<(), DiagnoseError> {
     let ps: Vec<CalParam> = cal.ratios.iter().map(|(p, _)| *p).collect();
-    let (ratios, _, _) = fit_ratios(eng, nominal, &ps, ShiftFit::No)?;
+    let now: Vec<f64> = cal.ratios.iter().map(|(_, r)| *r).collect();
+    let from = from_cal.then_some(now.as_slice());
+    let (ratios, _, _) = fit_ratios(eng, nominal, &ps, ShiftFit::No, from)?;
     cal.at_bound = ps
         .iter()
         .zip(&ratios)

@@ -888,15 +888,10 @@ fn a_wide_lead_on_the_fitting_part_widens_the_coulomb_stroke_tie() {
     // over strokes shorter than 12.3 mm, 22 N under 12.6 mm) whose held-out ends trailed
     // Coulomb's score by 0.077 and 0.141, outside the fixed tie of 0.06, while they took
     // 0.85 against 0.53 and 0.63 against 0.43 of the fitting part: the tie is now 3/4 of
-    // that lead.
+    // that lead. Since the calibration is fitted again with the candidates' weights (stop
+    // 32), both stroke frictions lead or tie the held-out part too: they must stay named.
     for i in [24, 26] {
-        let r = named_single(2727, i, "stroke_friction");
-        let e = ranked(&r, "stroke_friction");
-        assert!(
-            e.note.contains("by the fitting part"),
-            "case {i}: {:?}",
-            e.note
-        );
+        named_single(2727, i, "stroke_friction");
     }
 }
 
@@ -1142,4 +1137,55 @@ fn a_screw_growth_beside_a_friction_counts_by_its_position_shrink() {
     // position residual, but the force the friction left dilutes its combined score to
     // 0.007, and a lead error's harmonics took the drift instead.
     both_selected(2626, 64, &["thermal_growth", "stribeck_friction"]);
+}
+
+#[test]
+fn a_play_and_a_constant_force_found_together_are_named_one_flank_favoured() {
+    // Single-effect record 32 of the independent seed 2929: a gap of 21.4 µm (contact
+    // stiffness 140 N/µm) and a bias of −42.1 N on the carriage. The selection found a
+    // constant force and a play, and reported the two; `backlash_asymmetry` applies exactly
+    // the two, and is named with the two's parameters.
+    let r = named_single(2929, 32, "backlash_asymmetry");
+    assert_eq!(r.selected, ["backlash_asymmetry"], "{:#?}", r.ranking);
+    let e = r
+        .ranking
+        .iter()
+        .find(|e| e.effect == "backlash_asymmetry")
+        .expect("ranked");
+    let (w, f) = (e.params["width_um"], e.params["preload_force_n"]);
+    assert!((f.abs() - 42.1).abs() < 0.1 * 42.1, "preload {f} N: {e:#?}");
+    // The bias holds the carriage on one flank except where the drive's force crosses it,
+    // so the width is seen only in part (read at 10.7 µm): found, but not to the µm.
+    assert!(w > 0.4 * 21.4 && w < 1.2 * 21.4, "width {w} µm: {e:#?}");
+}
+
+#[test]
+fn the_calibration_reads_the_gains_with_the_weights_the_candidates_are_scored_with() {
+    // Clean record 0 of the independent seed 2323 (motor encoder): its velocity gain is
+    // 5.0 % above the nominal. Fitted with the nominal's weights, where the force's noise
+    // outweighs a tenth of a µm of position, the calibration read +4.3 % and left a held-out
+    // position residual of 0.20 µm, of which a stiff compliance then took 79 %. Fitted once
+    // more with the calibrated residual's weights, it reads the gain and leaves the noise.
+    use axisbench::indep;
+    let spec = indep::standard_set(2323, indep::STANDARD_DURATION_S).swap_remove(0);
+    let c = indep::generate(&spec).expect("case generates");
+    assert!(c.truth.effects.is_empty(), "case 0 is clean");
+    let kv_true = c.truth.nominal_scale["kv_n_s_per_m"];
+    let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
+    let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
+    let r = run(&c.preset, &rec, None, &Options::default());
+    assert_eq!(r.verdict, "none", "{:#?}", r.ranking);
+    let kv = r
+        .calibration
+        .ratios
+        .iter()
+        .find(|(p, _)| p.name() == "kv")
+        .map(|(_, x)| *x)
+        .expect("kv calibrated");
+    assert!((kv - kv_true).abs() < 0.003, "kv ×{kv}, true ×{kv_true}");
+    assert!(
+        r.overall.rms_after < 0.05,
+        "held-out position residual {} µm",
+        r.overall.rms_after
+    );
 }
