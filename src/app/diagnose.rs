@@ -251,7 +251,7 @@ fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
     ui.separator();
     let c = &rep.calibration;
     ui.label(format!(
-        "Calibration (nominal re-fitted first, within ±8 %): {}",
+        "Calibration (nominal re-fitted first, within ±8 %, the mass ±11 %): {}",
         axisbench::diagnose::report::calibration_lines(&c.ratios).join(", ")
     ));
     if let Some(s) = &c.skew {

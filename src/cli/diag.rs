@@ -134,7 +134,7 @@ fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
 /// The calibration of the nominal and any channel logged off its instant.
 fn print_calibration(r: &Report) {
     let c = &r.calibration;
-    say!("\nCALIBRATION (nominal parameters re-fitted first, within ±8 %):");
+    say!("\nCALIBRATION (nominal parameters re-fitted first, within ±8 %, the mass ±11 %):");
     say!(
         "  {}",
         axisbench::diagnose::report::calibration_lines(&c.ratios).join(", ")
@@ -142,7 +142,7 @@ fn print_calibration(r: &Report) {
     if !c.at_bound.is_empty() {
         let names: Vec<&str> = c.at_bound.iter().map(|p| p.name()).collect();
         say!(
-            "  at the ±8 % bound (more than a correction): {}",
+            "  at the bound (more than a correction): {}",
             names.join(", ")
         );
     }

@@ -10,7 +10,6 @@ use super::candidates::{self, Applied, Context, Fitted, MIN_SHRINK, Selected, Si
 use super::effects::Effect;
 use super::engine::{Cand, Engine, Eval, Scores};
 use super::lm::{self, Param};
-use crate::diagnose::calibrate::MAX_RATIO_CHANGE;
 
 /// Span of the moving average later rounds score through once an effect was proven by
 /// its signature alone (see [`proven_only`]), s.
@@ -335,11 +334,7 @@ fn joint_params(
                     scale: 1.0,
                 }
             } else {
-                Param {
-                    lo: 1.0 - MAX_RATIO_CHANGE,
-                    hi: 1.0 + MAX_RATIO_CHANGE,
-                    scale: 1.0,
-                }
+                p.bounds()
             }
         })
         .collect();
