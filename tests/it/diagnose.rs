@@ -529,13 +529,20 @@ fn a_screw_growth_is_found_with_its_fixed_bearing() {
 
 /// Diagnoses case `i` of the independent generator's standard set of `seed` (24 s records).
 fn standard_case(seed: u64, i: usize) -> (Vec<String>, Report) {
+    let (c, r) = standard_case_with_truth(seed, i);
+    let hidden = c.truth.effects.iter().map(|e| e.name.to_owned()).collect();
+    (hidden, r)
+}
+
+/// Standard case `i` of `seed` (its record and truth) and its report.
+fn standard_case_with_truth(seed: u64, i: usize) -> (axisbench::indep::Case, Report) {
     use axisbench::indep;
     let spec = indep::standard_set(seed, indep::STANDARD_DURATION_S).swap_remove(i);
     let c = indep::generate(&spec).expect("case generates");
     let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
     let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
-    let hidden = c.truth.effects.iter().map(|e| e.name.to_owned()).collect();
-    (hidden, run(&c.preset, &rec, None, &Options::default()))
+    let r = run(&c.preset, &rec, None, &Options::default());
+    (c, r)
 }
 
 /// Standard case `i` of `seed`, which must hide `effect` alone, diagnosed: its report, after
@@ -545,6 +552,24 @@ fn named_single(seed: u64, i: usize, effect: &str) -> Report {
     assert_eq!(hidden, [effect], "seed {seed} case {i}");
     assert_eq!(r.verdict, effect, "seed {seed} case {i}: {:#?}", r.ranking);
     r
+}
+
+/// The ranking's entry of `effect` in `r`.
+fn ranked<'r>(r: &'r Report, effect: &str) -> &'r diagnose::RankEntry {
+    r.ranking
+        .iter()
+        .find(|e| e.effect == effect)
+        .unwrap_or_else(|| panic!("{effect} ranked: {:#?}", r.ranking))
+}
+
+/// The calibration's ratio of the parameter named `name` in `r`.
+fn cal_ratio(r: &Report, name: &str) -> f64 {
+    r.calibration
+        .ratios
+        .iter()
+        .find(|(p, _)| p.name() == name)
+        .map(|(_, x)| *x)
+        .unwrap_or_else(|| panic!("{name} calibrated"))
 }
 
 #[test]
@@ -1118,11 +1143,7 @@ fn a_viscous_friction_that_differs_by_direction_is_named_with_its_split() {
     // left the force residual worse held-out (−140 %), and the verdict was `none`; the
     // |v| term of the force residual is the split, (105.7 − 36.4)/2 = 34.7 N·s/m.
     let r = named_single(2828, 21, "viscous_friction");
-    let v = r
-        .ranking
-        .iter()
-        .find(|e| e.effect == "viscous_friction")
-        .expect("viscous friction ranked");
+    let v = ranked(&r, "viscous_friction");
     let split = v.params.get("split_n_s_per_m").copied().unwrap_or(f64::NAN);
     assert!(
         (split - 34.7).abs() < 0.25 * 34.7,
@@ -1147,11 +1168,7 @@ fn a_play_and_a_constant_force_found_together_are_named_one_flank_favoured() {
     // the two, and is named with the two's parameters.
     let r = named_single(2929, 32, "backlash_asymmetry");
     assert_eq!(r.selected, ["backlash_asymmetry"], "{:#?}", r.ranking);
-    let e = r
-        .ranking
-        .iter()
-        .find(|e| e.effect == "backlash_asymmetry")
-        .expect("ranked");
+    let e = ranked(&r, "backlash_asymmetry");
     let (w, f) = (e.params["width_um"], e.params["preload_force_n"]);
     assert!((f.abs() - 42.1).abs() < 0.1 * 42.1, "preload {f} N: {e:#?}");
     // The bias holds the carriage on one flank except where the drive's force crosses it,
@@ -1166,22 +1183,11 @@ fn the_calibration_reads_the_gains_with_the_weights_the_candidates_are_scored_wi
     // outweighs a tenth of a µm of position, the calibration read +4.3 % and left a held-out
     // position residual of 0.20 µm, of which a stiff compliance then took 79 %. Fitted once
     // more with the calibrated residual's weights, it reads the gain and leaves the noise.
-    use axisbench::indep;
-    let spec = indep::standard_set(2323, indep::STANDARD_DURATION_S).swap_remove(0);
-    let c = indep::generate(&spec).expect("case generates");
+    let (c, r) = standard_case_with_truth(2323, 0);
     assert!(c.truth.effects.is_empty(), "case 0 is clean");
     let kv_true = c.truth.nominal_scale["kv_n_s_per_m"];
-    let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
-    let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
-    let r = run(&c.preset, &rec, None, &Options::default());
     assert_eq!(r.verdict, "none", "{:#?}", r.ranking);
-    let kv = r
-        .calibration
-        .ratios
-        .iter()
-        .find(|(p, _)| p.name() == "kv")
-        .map(|(_, x)| *x)
-        .expect("kv calibrated");
+    let kv = cal_ratio(&r, "kv");
     assert!((kv - kv_true).abs() < 0.003, "kv ×{kv}, true ×{kv_true}");
     assert!(
         r.overall.rms_after < 0.05,
@@ -1196,9 +1202,7 @@ fn a_mass_more_than_eight_per_cent_off_is_read_as_calibration() {
     // heavier and its motor's force constant 1.9 % weaker than the nominal says, so the mass
     // the commanded force moves is 9.5 % above the nominal's. Within ±8 % the calibration
     // stopped at the bound and left 0.034 µm held-out; the mass's own bound reads it.
-    use axisbench::indep;
-    let spec = indep::standard_set(2929, indep::STANDARD_DURATION_S).swap_remove(11);
-    let c = indep::generate(&spec).expect("case generates");
+    let (c, r) = standard_case_with_truth(2929, 11);
     assert!(c.truth.effects.is_empty(), "case 11 is clean");
     let s = &c.truth.nominal_scale;
     let d = &c.preset.axes[0].drive;
@@ -1207,17 +1211,8 @@ fn a_mass_more_than_eight_per_cent_off_is_read_as_calibration() {
         / (m_motor + m_table)
         / s["force_gain"];
     assert!(mass_true > 1.09, "the record's mass ×{mass_true}");
-    let axis = diagnose::pick_axis(&c.trace, "case.csv", &c.preset, None).expect("axis");
-    let rec = Record::for_preset(&c.trace, "case.csv", &c.preset, &axis).expect("record");
-    let r = run(&c.preset, &rec, None, &Options::default());
     assert_eq!(r.verdict, "none", "{:#?}", r.ranking);
-    let mass = r
-        .calibration
-        .ratios
-        .iter()
-        .find(|(p, _)| p.name() == "mass")
-        .map(|(_, x)| *x)
-        .expect("mass calibrated");
+    let mass = cal_ratio(&r, "mass");
     assert!(
         (mass - mass_true).abs() < 0.005,
         "mass ×{mass}, true ×{mass_true}"
@@ -1237,11 +1232,7 @@ fn a_stiff_payload_the_force_noise_hides_is_found_by_the_loops_peak() {
     // rings at ~20 Hz where the calibrated model's does not: the position residual's peak
     // there stands hundreds of times above its spectrum's median (clean records: 2–16×).
     let r = named_single(3232, 42, "compliance");
-    let e = r
-        .ranking
-        .iter()
-        .find(|e| e.effect == "compliance")
-        .expect("ranked");
+    let e = ranked(&r, "compliance");
     let f_hz = e.evidence_figures.get("loop_peak_hz").copied();
     assert!(f_hz.is_some_and(|f| (10.0..40.0).contains(&f)), "{e:#?}");
     let k = e.params["stiffness_n_per_um"];
