@@ -554,14 +554,6 @@ fn named_single(seed: u64, i: usize, effect: &str) -> Report {
     r
 }
 
-/// The ranking's entry of `effect` in `r`.
-fn ranked<'r>(r: &'r Report, effect: &str) -> &'r diagnose::RankEntry {
-    r.ranking
-        .iter()
-        .find(|e| e.effect == effect)
-        .unwrap_or_else(|| panic!("{effect} ranked: {:#?}", r.ranking))
-}
-
 /// The calibration's ratio of the parameter named `name` in `r`.
 fn cal_ratio(r: &Report, name: &str) -> f64 {
     r.calibration
