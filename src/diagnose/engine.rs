@@ -72,6 +72,14 @@ impl<'a> Split<'a> {
             validate,
         })
     }
+
+    /// The measured positions of the held-out part, m.
+    pub fn hold_pos_m(&self) -> &[f64] {
+        match self.validate {
+            Some(v) => &v.pos_m,
+            None => self.main.pos_m.get(self.n_fit..).unwrap_or(&[]),
+        }
+    }
 }
 
 /// A candidate: the model (its disturbances are those of the main record) plus the

@@ -142,7 +142,8 @@ fn wave(p: &Periodic, gain: f64) -> Disturbance {
             Disturbance::Sine {
                 period_s: p.period_s,
                 amplitude_n,
-                offset_n,
+                // A sine has no mean: a mean beside it is a constant force (see `refine_sine`).
+                offset_n: 0.0,
                 first_rise_s: (p.first_rise_s + shift).rem_euclid(p.period_s),
             }
         }
@@ -542,8 +543,12 @@ fn time_held_out_bursts(
     (Disturbance::Windows(w), vec![])
 }
 
-/// A sine's amplitude, phase and offset: its sine, cosine and constant parts are three
-/// linear columns, so three replays fit them exactly for a linear loop.
+/// A sine's amplitude and phase: its sine and cosine parts are two linear columns, so two
+/// replays fit them exactly for a linear loop. The sine is fitted without a mean: a mean
+/// beside it is a constant force, which the next round names (2828 case_066: a sine of
+/// 19 N beside a cable carrier's −35 N, the sine's offset took the carrier's force and the
+/// constant force was not named). A square wave keeps its offset: which of its two levels
+/// is the rest level the record does not say.
 fn refine_sine(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
     let Disturbance::Sine {
         period_s,
@@ -564,18 +569,13 @@ fn refine_sine(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseErro
     let g_sin = rp.change(sine(amp, 0.0, first_rise_s))?;
     // A quarter period earlier: the cosine of the same phase.
     let g_cos = rp.change(sine(amp, 0.0, first_rise_s - 0.25 * period_s))?;
-    let g_offset = rp.change(sine(0.0, amp, first_rise_s))?;
-    let Some((_, x)) = linear_levels(&rp.r0, &[g_sin, g_cos, g_offset]) else {
+    let Some((_, x)) = linear_levels(&rp.r0, &[g_sin, g_cos]) else {
         return Ok(d);
     };
     // a·sin θ + b·cos θ = R·sin(θ + φ): the up-crossing moves φ/ω earlier.
     let phi = x[1].atan2(x[0]);
     let rise = first_rise_s - phi / std::f64::consts::TAU * period_s;
-    Ok(sine(
-        amp * x[0].hypot(x[1]),
-        amp * x[2],
-        rise.rem_euclid(period_s),
-    ))
+    Ok(sine(amp * x[0].hypot(x[1]), 0.0, rise.rem_euclid(period_s)))
 }
 
 /// A square wave's level, offset and edge: for each trial edge one replay of the wave gives
