@@ -3,7 +3,7 @@
 
 use axisbench::diagnose::evidence::{
     self, Burst, Periodic, WaveShape, bursts, drift, grid, lag, periodic_in_position,
-    periodic_in_time, regress, resonance, ringing, steps, tone,
+    periodic_in_time, regress, resonance, ringing, steps, steps_to_end, tone,
 };
 use std::f64::consts::{PI, TAU};
 
@@ -248,6 +248,37 @@ fn evidence_steps_of_known_size() {
     assert_eq!(two.len(), 2, "{two:?}");
     assert!(two[0].index.abs_diff(5_000) <= 20, "{two:?}");
     assert!(two[1].index.abs_diff(12_000) <= 20, "{two:?}");
+}
+
+/// A level change 300 samples before the end: inside the 500-sample gap `steps` keeps from
+/// both ends, so `steps` puts it at the gap's bound with 3/5 of its size (the last 500
+/// samples' mean), and the level it leaves at the end is off; `steps_to_end` with a
+/// 100-sample end gap finds it at its place and size. The earlier step is found by both.
+#[test]
+fn evidence_step_shortly_before_the_end() {
+    let mut y = Rng::new(13).noise(20_000, 1.0);
+    for (at, jump) in [(8_000usize, 4.0), (19_700, -5.0)] {
+        for v in &mut y[at..] {
+            *v += jump;
+        }
+    }
+    let plain = steps(&y, 500, 6.0, 10);
+    assert_eq!(plain.len(), 2, "{plain:?}");
+    assert_eq!(plain[1].index, 19_500, "{plain:?}");
+    assert!((plain[1].jump + 3.0).abs() < 0.3, "{plain:?}");
+    let near = steps_to_end(&y, 500, 100, 6.0, 10);
+    assert_eq!(near.len(), 2, "{near:?}");
+    assert!(near[0].index.abs_diff(8_000) <= 20, "{near:?}");
+    assert!(near[1].index.abs_diff(19_700) <= 20, "{near:?}");
+    assert!((near[1].jump + 5.0).abs() < 0.3, "{near:?}");
+    // No closer than the end gap: a change 50 samples before the end is put at the gap's
+    // bound, 100 samples before it.
+    let mut z = Rng::new(14).noise(20_000, 1.0);
+    for v in &mut z[19_950..] {
+        *v += 8.0;
+    }
+    let late = steps_to_end(&z, 500, 100, 6.0, 10);
+    assert!(late.len() == 1 && late[0].index == 19_900, "{late:?}");
 }
 
 #[test]
@@ -506,6 +537,7 @@ fn evidence_degenerate_input_gives_none_or_empty() {
         let _ = (grid(y, 1e-9, 0.02), lag(y, y, 5), regress(&[y], y, 1.0));
         let _ = (
             steps(y, 0, 0.0, usize::MAX),
+            steps_to_end(y, usize::MAX, 0, 0.0, usize::MAX),
             bursts(y, 0, 1.0),
             bursts(y, usize::MAX, 1.0),
         );
@@ -571,7 +603,7 @@ proptest::proptest! {
         if let Some(g) = grid(y, 1e-9, 0.02) {
             proptest::prop_assert!(g.quantum > 0.0 && g.offset.is_finite(), "{g:?}");
         }
-        for s in steps(y, gap, 3.0, 10) {
+        for s in steps(y, gap, 3.0, 10).into_iter().chain(steps_to_end(y, gap, gap / 3, 3.0, 10)) {
             proptest::prop_assert!(s.index < n && s.jump.is_finite(), "{s:?}");
         }
         for b in bursts(y, window, 2.0) {

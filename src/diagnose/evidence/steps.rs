@@ -38,10 +38,26 @@ pub struct Step {
 /// appear where there are none (the noise std comes from first differences): high-pass or
 /// detrend such a y first. Empty for a constant y or n < 2·min_gap.
 pub fn steps(y: &[f64], min_gap: usize, min_significance: f64, max_steps: usize) -> Vec<Step> {
+    steps_to_end(y, min_gap, min_gap, min_significance, max_steps)
+}
+
+/// [`steps`] with the last step allowed as close as `end_gap` samples to y's end (at most
+/// `min_gap`). A diagnosis extrapolates the last level into the held-out part that follows
+/// the end, so a change shortly before the end decides that level (2323–3434 case_062:
+/// a step 0.28 s before the fitting part's end, past the 0.5 s gap, left the held-out part
+/// at the level before it).
+pub fn steps_to_end(
+    y: &[f64],
+    min_gap: usize,
+    end_gap: usize,
+    min_significance: f64,
+    max_steps: usize,
+) -> Vec<Step> {
     let gap = min_gap.max(1);
+    let end_gap = end_gap.clamp(1, gap);
     let n = y.len();
     let cap = max_steps.min(MAX_STEPS);
-    if n < 2 * gap || cap == 0 || min_significance.is_nan() {
+    if n < gap.saturating_add(end_gap) || cap == 0 || min_significance.is_nan() {
         return vec![];
     }
     let Some((ys, scale)) = normalized(y) else {
@@ -60,6 +76,7 @@ pub fn steps(y: &[f64], min_gap: usize, min_significance: f64, max_steps: usize)
         prefix: &prefix,
         sigma,
         gap,
+        end_gap,
     };
     // Open segments with their best split: (significance, start, end, split).
     let mut open: Vec<(f64, usize, usize, usize)> = seg.best(0, n).into_iter().collect();
@@ -109,6 +126,8 @@ struct Segments<'a> {
     prefix: &'a [f64],
     sigma: f64,
     gap: usize,
+    /// The gap kept before y's end.
+    end_gap: usize,
 }
 
 impl Segments<'_> {
@@ -124,18 +143,23 @@ impl Segments<'_> {
         )
     }
 
-    /// The most significant split of [a, b) leaving ≥ gap samples on each side. With
-    /// s1 the sum of [a, k), T of [a, b) and n = b − a, the significance squared is
-    /// (s1·n − T·n1)² / (n1·n2·n·σ²): one division per candidate.
+    /// The most significant split of [a, b) leaving ≥ gap samples on each side (≥ end_gap
+    /// before y's end). With s1 the sum of [a, k), T of [a, b) and n = b − a, the
+    /// significance squared is (s1·n − T·n1)² / (n1·n2·n·σ²): one division per candidate.
     fn best(&self, a: usize, b: usize) -> Option<(f64, usize, usize, usize)> {
-        if b < a + 2 * self.gap {
+        let p = self.prefix;
+        let after = if b + 1 == p.len() {
+            self.end_gap
+        } else {
+            self.gap
+        };
+        if b < a.saturating_add(self.gap).saturating_add(after) {
             return None;
         }
-        let p = self.prefix;
         let n = (b - a) as f64;
         let total = p[b] - p[a];
         let (mut best_k, mut best_v) = (a + self.gap, f64::NEG_INFINITY);
-        for k in a + self.gap..=b - self.gap {
+        for k in a + self.gap..=b - after {
             let n1 = (k - a) as f64;
             let num = (p[k] - p[a]) * n - total * n1;
             let v = num * num / (n1 * (n - n1));
