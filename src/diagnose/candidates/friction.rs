@@ -61,17 +61,7 @@ fn regress(ctx: &Context, cols: &[Vec<f64>]) -> Option<Regression> {
     let cols: Vec<Vec<f64>> = cols.iter().map(|c| pick(c)).collect();
     let c: Vec<&[f64]> = cols.iter().map(|c| c.as_slice()).collect();
     let first = evidence::regress(&c, &y, 1.0)?;
-    let left: Vec<f64> = y
-        .iter()
-        .enumerate()
-        .map(|(k, v)| {
-            v - c
-                .iter()
-                .zip(&first.coef)
-                .map(|(col, b)| col[k] * b)
-                .sum::<f64>()
-        })
-        .collect();
+    let left = evidence::minus_fit(&y, &c, &first.coef);
     evidence::regress(&c, &y, corr_length(&left))
 }
 

@@ -16,6 +16,22 @@ pub struct Regression {
     pub explained: f64,
 }
 
+/// y less the fit `Σ columns[j]·coef[j]` of a [`Regression`], over the pairs of columns
+/// and coefficients: passing only the first columns keeps the other fitted terms in y. A
+/// column shorter than y counts as zero past its end.
+pub fn minus_fit(y: &[f64], columns: &[&[f64]], coef: &[f64]) -> Vec<f64> {
+    y.iter()
+        .enumerate()
+        .map(|(k, v)| {
+            v - columns
+                .iter()
+                .zip(coef)
+                .map(|(c, b)| c.get(k).map_or(0.0, |x| x * b))
+                .sum::<f64>()
+        })
+        .collect()
+}
+
 /// Least-squares regression of y on the given columns (each as long as y; add a column of
 /// ones for an intercept), solved by nalgebra's SVD on columns scaled to unit RMS
 /// (dependent columns get the minimum-norm solution and infinite standard errors).
