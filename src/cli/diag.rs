@@ -235,7 +235,7 @@ fn print_which(r: &Report) {
     if r.verdict == "none" {
         say!("  no unmodelled effect found beyond the calibration");
     } else {
-        say!("  added in turn: {}", r.selected.join(" + "));
+        say!("  selected: {}", r.selected.join(" + "));
     }
 }
 

@@ -1330,3 +1330,19 @@ fn a_constant_force_beside_a_sine_is_named_as_well() {
         "constant force {f_n} N, true −34.7 N"
     );
 }
+
+#[test]
+fn a_delay_a_command_skew_makes_is_named_after_the_records_own_effect() {
+    // Single-effect record 20 of the independent seed 2929, skewed (index 76 + 20): a
+    // viscous friction, its command logged one sample early. Position and force lag the
+    // logged command by a sample, which a command delay also makes; the delay (1.05
+    // samples) took more of the held-out residual than the friction and was named first.
+    // A delay of at most a sample and a quarter beside another effect is named after it.
+    let (hidden, r) = standard_case(2929, 96);
+    assert_eq!(hidden, ["viscous_friction"]);
+    assert_eq!(r.verdict, "viscous_friction", "{:#?}", r.ranking);
+    assert_eq!(r.selected, ["viscous_friction", "command_delay"]);
+    let d = ranked(&r, "command_delay");
+    assert!(d.note.contains("logged"), "{}", d.note);
+    assert!(d.params["delay_ms"] < 1.25, "{:?}", d.params);
+}

@@ -2,7 +2,7 @@
 //! known truth, on signals that must not trigger them, and on degenerate input.
 
 use axisbench::diagnose::evidence::{
-    self, Burst, Periodic, WaveShape, bursts, drift, grid, lag, periodic_in_position,
+    self, Burst, Periodic, RINGING_T, WaveShape, bursts, drift, grid, lag, periodic_in_position,
     periodic_in_time, regress, resonance, ringing, steps, steps_to_end, tone,
 };
 use std::f64::consts::{PI, TAU};
@@ -662,6 +662,55 @@ fn evidence_ringing_after_acceleration_steps() {
         // −0.8·e^(−12.5/30)·1 = −0.53 N and 0.8·e^(−37.5/30) = 0.23 N, less the noise.
         assert!(
             (r.dip + 0.53).abs() < 0.12 && (r.rise - 0.23).abs() < 0.1,
+            "seed {seed}: {r:?}"
+        );
+    }
+}
+
+/// Short ramps put the command's next step (the ramp's end) inside the window: its own
+/// answer (here a dip deeper than the swing's, 55 ms after the ramp's start) must not hide
+/// the swing's dip and overshoot before it (independent seed 3030 case_043).
+#[test]
+fn evidence_ringing_before_the_ramps_end_answers() {
+    let n = 40_000;
+    // +1 m/s² for 40 ms, rest 400 ms, −1 m/s² for 40 ms, rest 400 ms.
+    let acc: Vec<f64> = (0..n)
+        .map(|k| match k % 880 {
+            0..40 => 1.0,
+            440..480 => -1.0,
+            _ => 0.0,
+        })
+        .collect();
+    let (amp_n, period_s, tau_s, bump_n) = (1.5, 0.03, 0.015, 2.5);
+    for seed in 70..73 {
+        let mut y = Rng::new(seed).noise(n, 0.4);
+        for e in 1..n {
+            let d = acc[e] - acc[e - 1];
+            let ramp_start = acc[e] != 0.0;
+            if d == 0.0 {
+                continue;
+            }
+            for (j, yj) in y[e..].iter_mut().take(150).enumerate() {
+                let t = j as f64 * 1e-3;
+                if ramp_start {
+                    *yj -= amp_n * d * (-t / tau_s).exp() * (TAU * t / period_s).sin();
+                } else {
+                    *yj += bump_n * d * (-((t - 0.015) / 0.008).powi(2)).exp();
+                }
+            }
+        }
+        let r = ringing(&y, &acc, 1e-3, 0.08).expect("steps");
+        // A damped sine peaks where tan(ωt) = ωτ: at 6.0 ms and 21.0 ms.
+        assert!((r.dip_s - 0.006).abs() <= 0.004, "seed {seed}: {r:?}");
+        assert!((r.rise_s - 0.021).abs() <= 0.006, "seed {seed}: {r:?}");
+        assert!(
+            -r.dip_t >= RINGING_T.0 && r.rise_t >= RINGING_T.1,
+            "seed {seed}: {r:?}"
+        );
+        // −1.5·e^(−0.4)·0.953 = −0.96 N and 1.5·e^(−1.4)·0.953 = 0.35 N, the noise's
+        // standard error 0.04 N.
+        assert!(
+            (r.dip + 0.96).abs() < 0.15 && (r.rise - 0.35).abs() < 0.15,
             "seed {seed}: {r:?}"
         );
     }

@@ -237,11 +237,6 @@ fn resonance(ctx: &Context) -> Evidence {
 /// overshoot show in the force residual (the loop's own settling time on these axes).
 const RINGING_WINDOW_S: f64 = 0.08;
 
-/// Standard errors the dip and the overshoot after it must each reach (see
-/// [`evidence::ringing`]). Set on the independent seed 1: a clean record's average shows a
-/// one-sided dip of up to ~4 standard errors and no overshoot.
-const RINGING_T: (f64, f64) = (6.0, 4.0);
-
 /// The second signature of a compliance: the force residual rings after the command's
 /// acceleration steps (a dip, then an overshoot), where a spectrum sees no peak.
 fn ringing(ctx: &Context, y: &[f64], dt: f64) -> Evidence {
@@ -250,7 +245,7 @@ fn ringing(ctx: &Context, y: &[f64], dt: f64) -> Evidence {
         eprintln!("RINGING {r:?}");
     }
     match r {
-        Some(r) if -r.dip_t >= RINGING_T.0 && r.rise_t >= RINGING_T.1 && ctx.sig.r_force.is_some() => Evidence {
+        Some(r) if -r.dip_t >= evidence::RINGING_T.0 && r.rise_t >= evidence::RINGING_T.1 && ctx.sig.r_force.is_some() => Evidence {
             pass: true,
             text: format!(
                 "the force residual rings after the command's {} acceleration steps: {}, as a payload on a spring makes it",

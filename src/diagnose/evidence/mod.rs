@@ -28,7 +28,9 @@ pub use lag::{Lag, lag};
 pub use periodic::{Periodic, WaveShape, periodic_in_time};
 pub use position::{PositionPeriodic, periodic_in_position, refit_at_period, sharpen_period};
 pub use regress::{Regression, minus_fit, regress};
-pub use resonance::{RINGING_STEP_SHARE, Resonance, Ringing, Tone, resonance, ringing, tone};
+pub use resonance::{
+    RINGING_STEP_SHARE, RINGING_T, Resonance, Ringing, Tone, resonance, ringing, tone,
+};
 pub use steps::{Burst, Step, bursts, steps, steps_to_end};
 
 use nalgebra::{DMatrix, DVector, SVD};

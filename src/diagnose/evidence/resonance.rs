@@ -284,19 +284,25 @@ fn half_power_width(p: &[f64], k: usize) -> f64 {
 pub struct Ringing {
     /// Steps averaged.
     pub events: usize,
-    /// The dip: the average's most negative value per step sign, N (or y's unit) …
+    /// The dip: the average's most negative value (per step sign) before the overshoot
+    /// that pairs best with a dip (see [`RINGING_T`]), N (or y's unit) …
     pub dip: f64,
     /// … in standard errors of the average (the spread across steps).
     pub dip_t: f64,
     /// Its time after the step, s.
     pub dip_s: f64,
-    /// The overshoot after the dip: the largest value, in y's unit …
+    /// The overshoot after the dip, in y's unit …
     pub rise: f64,
     /// … and in standard errors.
     pub rise_t: f64,
     /// Its time after the step, s.
     pub rise_s: f64,
 }
+
+/// Standard errors the dip and the overshoot after it must each reach for a ringing to
+/// count. Set on the independent seed 1: a clean record's average shows a one-sided dip of
+/// up to ~4 standard errors and no overshoot.
+pub const RINGING_T: (f64, f64) = (6.0, 4.0);
 
 /// Steps of `acc` (one sample to the next) at least this share of its largest step.
 pub const RINGING_STEP_SHARE: f64 = 0.3;
@@ -353,8 +359,24 @@ pub fn ringing(y: &[f64], acc: &[f64], dt_s: f64, window_s: f64) -> Option<Ringi
             (m, m / se)
         })
         .collect();
-    let k_dip = (0..win).min_by(|&a, &b| stat[a].1.total_cmp(&stat[b].1))?;
-    let k_rise = (k_dip..win).max_by(|&a, &b| stat[a].1.total_cmp(&stat[b].1))?;
+    // The overshoot that best pairs with a dip before it (each judged against its own
+    // threshold of [`RINGING_T`]), not the window's deepest dip: within the window the
+    // command's next step (the end of the ramp) brings a dip of its own, which can be
+    // deeper than the first and has no overshoot left after it (independent seed 3030
+    // case_043: the payload's dip at 11 ms and overshoot at 26 ms, then the next step's
+    // dip at 45 ms).
+    let mut best: Option<(f64, usize, usize)> = None;
+    let mut k_min = 0usize;
+    for k in 1..win {
+        if stat[k - 1].1 < stat[k_min].1 {
+            k_min = k - 1;
+        }
+        let q = (-stat[k_min].1 / RINGING_T.0).min(stat[k].1 / RINGING_T.1);
+        if best.is_none_or(|(b, _, _)| q > b) {
+            best = Some((q, k_min, k));
+        }
+    }
+    let (_, k_dip, k_rise) = best?;
     Some(Ringing {
         events,
         dip: stat[k_dip].0,
