@@ -1266,18 +1266,20 @@ fn a_mass_more_than_eight_per_cent_off_is_read_as_calibration() {
 
 #[test]
 fn a_stiff_payload_the_force_noise_hides_is_found_by_the_loops_peak() {
-    // Single-effect record 42 of the independent seed 3232 (motor encoder): 29 kg on a
-    // 126 Hz mount (12.8 N/µm, 3 % of critical). The force residual shows no resonance (the
+    // Single-effect record 43 of the independent seed 3333 (motor encoder): 26 kg on a
+    // 108 Hz mount (8.7 N/µm, 3.7 % of critical). The force residual shows no resonance (the
     // command does not excite it above the force noise) and no ringing, but the closed loop
-    // rings at ~20 Hz where the calibrated model's does not: the position residual's peak
+    // rings at ~24 Hz where the calibrated model's does not: the position residual's peak
     // there stands hundreds of times above its spectrum's median (clean records: 2–16×).
-    let r = named_single(3232, 42, "compliance");
+    // (Until stop 36 this was 3232's record 42, whose ringing now passes: its overshoot
+    // is paired with the dip before it, see `evidence::ringing`.)
+    let r = named_single(3333, 43, "compliance");
     let e = ranked(&r, "compliance");
     let f_hz = e.evidence_figures.get("loop_peak_hz").copied();
     assert!(f_hz.is_some_and(|f| (10.0..40.0).contains(&f)), "{e:#?}");
     let k = e.params["stiffness_n_per_um"];
     assert!(
-        k > 12.8 / 2.0 && k < 12.8 * 2.0,
+        k > 8.73 / 2.0 && k < 8.73 * 2.0,
         "stiffness {k} N/µm: {e:#?}"
     );
 }
