@@ -287,6 +287,7 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
         t1_s: nominal.timing.t1_s,
         pos_source: PosSource::Scale,
         delay_s: 0.0,
+        lag_s: 0.0,
         disturbance: vec![],
         beam: None,
     };

@@ -398,6 +398,7 @@ pub fn diagnose(
             t1_s: preset.timing.t1_s,
             pos_source: main.pos_source.unwrap_or(preset.diagnose.pos_source),
             delay_s: 0.0,
+            lag_s: 0.0,
             disturbance: vec![],
             beam: replay::BeamModel::of(preset, &main.axis),
         },
@@ -441,6 +442,7 @@ pub fn diagnose(
     // A command delay is a common shift by another name: fitted again beside it, the
     // shifts would read what the delay overshoots as the command logged late.
     found.model.delay_s = 0.0;
+    found.model.lag_s = 0.0;
     let again = calibrate::fit_again(&eng0, &found, &cal)?;
     if !calibrate::skews_differ(report.calibration.skew, again.skew) {
         (progress.report)(1.0, "done");

@@ -564,6 +564,10 @@ pub struct Model {
     pub pos_source: PosSource,
     /// Command delay, s (fractions of a sample interpolate).
     pub delay_s: f64,
+    /// Time constant of a first-order lag the (delayed) command passes through, s; 0 for
+    /// none. A drive's command filter or a smoothing stage lags like this rather than by a
+    /// whole shift.
+    pub lag_s: f64,
     /// External forces on the table.
     pub disturbance: Vec<Disturbance>,
     /// The crossbeam, when the axis is a tool post's Z.
@@ -601,6 +605,25 @@ fn delayed_cmd(rec: &Record, delay_s: f64, n: usize) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+/// `cmd` through a first-order lag of time constant `lag_s` (sampled exactly at `t3_s`),
+/// started in its steady state for the command's first velocity: a record that starts
+/// moving has its filtered command lagging already.
+fn lagged_cmd(mut cmd: Vec<f64>, lag_s: f64, t3_s: f64) -> Vec<f64> {
+    if !(lag_s > 0.0 && lag_s.is_finite() && t3_s > 0.0) || cmd.len() < 2 {
+        return cmd;
+    }
+    let alpha = 1.0 - (-t3_s / lag_s).exp();
+    let step0 = cmd[1] - cmd[0];
+    // The output one sample before the first, on a ramp of step0 per sample: it trails by
+    // (1 − α)/α steps in the steady state, and the ramp was one step back then.
+    let mut y = cmd[0] - step0 / alpha;
+    for x in &mut cmd {
+        y += alpha * (*x - y);
+        *x = y;
+    }
+    cmd
 }
 
 /// The plant's state at the first sample, from the measured record: the position sensor
@@ -643,7 +666,7 @@ pub fn simulate(model: &Model, rec: &Record, n: usize) -> SimOut {
     }
     let t3 = model.t3_s;
     let a = &model.axis;
-    let cmd = delayed_cmd(rec, model.delay_s, n);
+    let cmd = lagged_cmd(delayed_cmd(rec, model.delay_s, n), model.lag_s, t3);
     let comp = |k: usize| rec.comp_m.as_ref().map_or(0.0, |v| v[k]);
     let sag = sag_series(model, rec, n);
     let mut start = initial_state(model, rec);
@@ -701,5 +724,51 @@ fn reading(src: PosSource, o: &PlantOut) -> f64 {
         PosSource::Load => o.pos_m,
         PosSource::MotorEncoder => o.motor_enc_m,
         PosSource::Scale => o.scale_m,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lagged_cmd;
+
+    #[test]
+    fn a_ramp_through_the_lag_trails_by_its_steady_lag_from_the_first_sample() {
+        // 0.1 mm per 1 ms sample through a 2 ms lag: the exact discrete lag is (1 − α)/α
+        // steps, α = 1 − e^(−1/2), which is 1.54 samples (τ less half a sample, nearly).
+        let step_m = 1e-4;
+        let cmd: Vec<f64> = (0..200).map(|k| 0.01 + step_m * f64::from(k)).collect();
+        let out = lagged_cmd(cmd.clone(), 2e-3, 1e-3);
+        let alpha = 1.0 - (-0.5_f64).exp();
+        let trail_m = (1.0 - alpha) / alpha * step_m;
+        assert!(
+            (trail_m / step_m - 1.5415).abs() < 1e-3,
+            "{}",
+            trail_m / step_m
+        );
+        for (k, (c, y)) in cmd.iter().zip(&out).enumerate() {
+            assert!((c - y - trail_m).abs() < 1e-15, "sample {k}: {}", c - y);
+        }
+    }
+
+    #[test]
+    fn a_step_through_the_lag_closes_by_its_factor_each_sample() {
+        // At rest, then 1 mm: after n samples (1 − α)^n of the step is left.
+        let mut cmd = vec![0.0; 10];
+        cmd.extend(std::iter::repeat_n(1e-3, 40));
+        let out = lagged_cmd(cmd, 5e-3, 1e-3);
+        let keep = (-0.2_f64).exp();
+        assert!(out[..10].iter().all(|y| *y == 0.0));
+        for n in 0..40 {
+            let left = 1e-3 - out[10 + n];
+            let want = 1e-3 * keep.powi(i32::try_from(n + 1).unwrap_or(i32::MAX));
+            assert!((left - want).abs() < 1e-15, "n {n}: {left} against {want}");
+        }
+    }
+
+    #[test]
+    fn no_lag_leaves_the_command_as_it_is() {
+        let cmd = vec![0.0, 1e-4, 3e-4, 2e-4];
+        assert_eq!(lagged_cmd(cmd.clone(), 0.0, 1e-3), cmd);
+        assert_eq!(lagged_cmd(cmd.clone(), f64::NAN, 1e-3), cmd);
     }
 }

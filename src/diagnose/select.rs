@@ -263,9 +263,11 @@ fn delay_a_skew_makes_last(
     ranking: &mut [(Fitted, Scores)],
     t3_s: f64,
 ) {
-    let first_is_delay = selected
-        .first()
-        .is_some_and(|(f, _)| f.effect == Effect::CommandDelay);
+    // A lag rounds the command's changes of feed, which no logging instant does: a delay
+    // fitted with one is no skew.
+    let first_is_delay = selected.first().is_some_and(|(f, _)| {
+        f.effect == Effect::CommandDelay && !matches!(f.applied, Applied::DelayLag(_))
+    });
     let delay_samples = params
         .first()
         .and_then(|p| p.first())

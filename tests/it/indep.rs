@@ -776,6 +776,7 @@ fn clean_case_replays_through_the_project_model() {
             t1_s: c.preset.timing.t1_s,
             pos_source: c.preset.diagnose.pos_source,
             delay_s: 0.0,
+            lag_s: 0.0,
             disturbance: vec![],
             beam: None,
         };

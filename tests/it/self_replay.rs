@@ -35,6 +35,7 @@ fn replay_residual(p: &Preset, tr: &Trace, axis: &str) -> (f64, f64, Option<usiz
         t1_s: p.timing.t1_s,
         pos_source: rec.pos_source.unwrap_or(p.diagnose.pos_source),
         delay_s: 0.0,
+        lag_s: 0.0,
         disturbance: vec![],
         beam: replay::BeamModel::of(p, axis),
     };

@@ -554,21 +554,14 @@ pub fn fit_split(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, Diagnos
     };
     let c0 = ev.hint.first().copied().unwrap_or(0.0);
     let first = vec![vec![c0, split0], vec![0.0, split0]];
-    let fitted = ctx.fit_lm_defs(
+    ctx.fit_variant(
         Effect::ViscousFriction,
         &SPLIT_DEFS,
         first,
-        ev.clone(),
+        ev,
         &|th| Applied::Split(th.to_vec()),
-        super::LM_PATIENCE,
-    )?;
-    Ok(fitted.map(|mut f| {
-        // Its two parameters are not [`Effect::params`]' one: the later rounds and the
-        // final joint fit keep them as fitted (as a film law's).
-        f.refit = false;
-        f.note = "a coefficient that differs by direction (it explained more of the fitting part than one coefficient)".into();
-        f
-    }))
+        &|_| "a coefficient that differs by direction (it explained more of the fitting part than one coefficient)".into(),
+    )
 }
 
 #[cfg(test)]

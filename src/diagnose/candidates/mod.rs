@@ -239,6 +239,8 @@ pub enum Applied {
     /// A compliance as the screw's spring between motor and table (see
     /// [`super::effects::set_screw_spring`]).
     Screw(Vec<f64>),
+    /// A command delay with a first-order lag behind it (see [`special::set_delay_lag`]).
+    DelayLag(Vec<f64>),
 }
 
 impl Applied {
@@ -270,6 +272,7 @@ impl Applied {
             Applied::Split(th) => friction::set_split(c, th),
             Applied::Hardening(th) => special::set_hardening(c, th),
             Applied::Screw(th) => super::effects::set_screw_spring(&mut c.model, th),
+            Applied::DelayLag(th) => special::set_delay_lag(c, th),
             Applied::Disturbance(d, v) => {
                 c.model.disturbance.push(d.clone());
                 c.dist_val.extend(v.iter().cloned());
@@ -452,6 +455,27 @@ impl Context<'_, '_> {
         self.fit_lm_defs(effect, defs, first, ev, make, patience)
     }
 
+    /// A richer shape of `effect` than [`Effect::params`] (parameters `defs`, starts
+    /// `first`, applied by `make`), fitted as [`Context::fit_lm_defs`] does and described by
+    /// `note`. Its parameters are not the effect's own: the later rounds and the final joint
+    /// fit keep them as fitted.
+    pub fn fit_variant(
+        &self,
+        effect: Effect,
+        defs: &[crate::diagnose::effects::ParamDef],
+        first: Vec<Vec<f64>>,
+        ev: &Evidence,
+        make: &dyn Fn(&[f64]) -> Applied,
+        note: &dyn Fn(&[f64]) -> String,
+    ) -> Result<Option<Fitted>, DiagnoseError> {
+        let fitted = self.fit_lm_defs(effect, defs, first, ev.clone(), make, LM_PATIENCE)?;
+        Ok(fitted.map(|mut f| {
+            f.refit = false;
+            f.note = note(&f.theta);
+            f
+        }))
+    }
+
     /// [`Context::fit_lm_as`] over parameters `defs` (another shape of the effect than
     /// [`Effect::params`]), from `first` (each as long as `defs`).
     pub fn fit_lm_defs(
@@ -630,6 +654,11 @@ impl Context<'_, '_> {
                 let split = friction::fit_split(self, &ev)?;
                 let one = self.fit_lm(effect, ev)?;
                 Ok(self.richer_if_better(one, split, SPLIT_OVER_ONE))
+            }
+            Effect::CommandDelay => {
+                let pure = self.fit_lm(effect, ev.clone())?;
+                let lag = special::fit_delay_lag(self, &ev, pure.as_ref())?;
+                Ok(self.richer_if_better(pure, lag, LAG_OVER_PURE))
             }
             _ => self.fit_lm(effect, ev),
         }
@@ -877,6 +906,7 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
     play_beyond_constant(&mut ranked);
     bursts_a_state_explains(&mut ranked);
     stroke_or_coulomb_by_fit(&mut ranked);
+    lead_or_growth_by_position(&mut ranked);
     compliance_unseen_in_holdout(ctx, &mut ranked);
     if ctx.selected.is_empty() {
         stiff_mount_in_position(ctx, &mut ranked);
@@ -965,25 +995,47 @@ fn fit_weight(e: Effect) -> u32 {
 /// (seeds 808, 1111, 1313) reached 1.9× or more, or stood alone at 0.46–0.68.
 const STROKE_OVER_BEST: f64 = 1.5;
 
-/// Marks the stroke friction of a round significant by [`STROKE_OVER_BEST`].
+/// A stroke friction with nothing else found counts at this held-out score (below
+/// [`LARGE_SCORE`]: its law's four parameters pay the penalty) when it takes at least `.1`
+/// of the held-out force residual: a film that follows neither law of the signature's
+/// regression, which the direction column then takes too, leaves its force behind. Set in
+/// stop 39 on the traces of the independent seeds 2323–3434 and 3838–4242 before seeds 4343
+/// and 4444 were generated: three stroke records named `none` scored 0.22–0.28 with
+/// 0.33–0.76 of the force; of the other records named `none`, a Stribeck friction's stroke
+/// candidate scored 0.17 with 0.21–0.23 of the force, and no clean record's passed 0.07.
+const STROKE_ALONE: (f64, f64) = (0.2, 0.3);
+
+/// Marks the stroke friction of a round significant by [`STROKE_OVER_BEST`] or
+/// [`STROKE_ALONE`].
 fn stroke_far_ahead(ranked: &mut [(Fitted, Scores)]) {
     let best = ranked
         .iter()
         .filter(|(_, s)| s.significant)
         .map(|(_, s)| s.score)
         .fold(0.0_f64, f64::max);
+    let alone = |s: &Scores| {
+        best <= 0.0
+            && s.score >= STROKE_ALONE.0
+            && s.shrink_force.is_some_and(|x| x >= STROKE_ALONE.1)
+    };
     for (f, s) in ranked.iter_mut() {
-        if f.effect == Effect::StrokeFriction
-            && !s.significant
-            && s.score >= LARGE_SCORE
-            && s.score >= STROKE_OVER_BEST * best
-        {
+        if f.effect != Effect::StrokeFriction || s.significant {
+            continue;
+        }
+        if s.score >= LARGE_SCORE && s.score >= STROKE_OVER_BEST * best {
             s.significant = true;
             f.note = format!(
                 "counted by its held-out score, {:.0} % against {:.0} % for the best effect the signatures found",
                 100.0 * s.score,
                 100.0 * best
             );
+        } else if alone(s) {
+            let note = format!(
+                "counted by its held-out score, {:.0} %, and the {:.0} % of the held-out force residual it takes, with no other effect found",
+                100.0 * s.score,
+                100.0 * s.shrink_force.unwrap_or(0.0)
+            );
+            count_with_note(f, s, note);
         }
     }
 }
@@ -1136,8 +1188,11 @@ fn compliance_unseen_in_holdout(ctx: &Context, ranked: &mut [(Fitted, Scores)]) 
 /// generated: 10 of the 13 unskewed compliance singles named otherwise pass (mounts of
 /// 124–282 Hz; 9–35 % of the position, −0.1–2.8 % of the force), and 7 skewed ones; one of
 /// the 120 unskewed clean records passes (3030 case_005: 21 %, +1.1 %), and the five skewed
-/// clean records that would pass all had a position skew.
-const STIFF_MOUNT: (f64, f64, f64) = (0.09, -0.005, 0.03);
+/// clean records that would pass all had a position skew. Lowered from 0.09 of the position
+/// to 0.06 in stop 39: seed 4242's mounts of 230–235 Hz took 7.7 % and 8.4 %, and no
+/// unskewed clean record over thirteen seeds that leaves the force no worse took more than
+/// 1.5 % apart from 3030 case_005; 4343 and 4444 were generated after the change.
+const STIFF_MOUNT: (f64, f64, f64) = (0.06, -0.005, 0.03);
 
 /// Counts a compliance by [`STIFF_MOUNT`] (on the calibrated model alone).
 fn stiff_mount_in_position(ctx: &Context, ranked: &mut [(Fitted, Scores)]) {
@@ -1158,17 +1213,12 @@ fn stiff_mount_in_position(ctx: &Context, ranked: &mut [(Fitted, Scores)]) {
     }) else {
         return;
     };
-    s.significant = true;
     let note = format!(
         "counted by the position ({:.0} % of its held-out residual, the force's {:+.1} %): a stiff mount the moves hardly excite",
         100.0 * s.shrink_pos,
         100.0 * s.shrink_force.unwrap_or(0.0)
     );
-    if f.note.is_empty() {
-        f.note = note;
-    } else {
-        f.note = format!("{}; {note}", f.note);
-    }
+    count_with_note(f, s, note);
 }
 
 /// Marks `f` found by what it takes away of the fitting part (its held-out part cannot
@@ -1205,13 +1255,8 @@ const FRICTION_TIE_PER_LEAD: f64 = 0.75;
 /// 0.571 against 0.457 fitting); every other near tie of the two over those seeds already
 /// ranked the one that explained more of the fitting part first, or had them within 0.05.
 fn stroke_or_coulomb_by_fit(ranked: &mut [(Fitted, Scores)]) {
-    let find = |r: &[(Fitted, Scores)], e: Effect| {
-        r.iter().position(|(f, s)| f.effect == e && s.significant)
-    };
-    let (Some(c), Some(st)) = (
-        find(ranked, Effect::CoulombFriction),
-        find(ranked, Effect::StrokeFriction),
-    ) else {
+    let Some((c, st)) = significant_pair(ranked, Effect::CoulombFriction, Effect::StrokeFriction)
+    else {
         return;
     };
     let (sc, ss) = (&ranked[c].1, &ranked[st].1);
@@ -1226,7 +1271,6 @@ fn stroke_or_coulomb_by_fit(ranked: &mut [(Fitted, Scores)]) {
     if fw - fl < FRICTION_FIT_LEAD || sw > sl || sl - sw >= tie {
         return;
     }
-    ranked[win].1.score = sl + 1e-6;
     let other = ranked[lose].0.effect.name();
     let note = format!(
         "ranked above {other} by the fitting part ({:.0} % against {:.0} % of its residual): their held-out scores are within {:.0} % ({:.1} % against {:.1} %)",
@@ -1236,12 +1280,74 @@ fn stroke_or_coulomb_by_fit(ranked: &mut [(Fitted, Scores)]) {
         100.0 * sw,
         100.0 * sl
     );
-    let f = &mut ranked[win].0;
+    rank_above(ranked, win, lose, note);
+}
+
+/// The places in `ranked` of the significant candidates of the effects `a` and `b`, when
+/// both are.
+fn significant_pair(ranked: &[(Fitted, Scores)], a: Effect, b: Effect) -> Option<(usize, usize)> {
+    let find = |e: Effect| {
+        ranked
+            .iter()
+            .position(|(f, s)| f.effect == e && s.significant)
+    };
+    Some((find(a)?, find(b)?))
+}
+
+/// Ranks `ranked[win]` just above `ranked[lose]`, and says why in its note.
+fn rank_above(ranked: &mut [(Fitted, Scores)], win: usize, lose: usize, why: String) {
+    ranked[win].1.score = ranked[lose].1.score + 1e-6;
+    add_note(&mut ranked[win].0, why);
+}
+
+/// Marks `f` found by a rule other than its signature, which `note` names.
+fn count_with_note(f: &mut Fitted, s: &mut Scores, note: String) {
+    s.significant = true;
+    add_note(f, note);
+}
+
+/// Adds `note` to what `f`'s note already says.
+fn add_note(f: &mut Fitted, note: String) {
     f.note = if f.note.is_empty() {
         note
     } else {
         format!("{}; {note}", f.note)
     };
+}
+
+/// A lead error and a screw's growth both move the position alone, and both can take a
+/// slope along the travel: a cumulative lead error's is fixed, a growth's rises with the
+/// heat. Found together, the one that takes this much more of the held-out position
+/// residual ranks first, whatever the combined score (which charges the lead error's
+/// harmonics more parameters). Set in stop 39 on the independent seeds 2323–4242: of the
+/// growth records where both were found, a lead error took at most 0.02 more of the
+/// position (2929 case_047 and 3333 case_047, skewed); seed 4444 case_048, a cumulative lead
+/// error of 10.4 µm/m under a 0.09 µm pitch error, was named a growth with 0.67 of the
+/// position taken by the lead error against 0.49 by the growth.
+const POSITION_LEAD: f64 = 0.1;
+
+/// Ranks a lead error and a screw's growth by [`POSITION_LEAD`].
+fn lead_or_growth_by_position(ranked: &mut [(Fitted, Scores)]) {
+    let Some((l, g)) = significant_pair(ranked, Effect::LeadError, Effect::ThermalGrowth) else {
+        return;
+    };
+    let (win, lose) = if ranked[l].1.shrink_pos >= ranked[g].1.shrink_pos {
+        (l, g)
+    } else {
+        (g, l)
+    };
+    let (pw, pl) = (ranked[win].1.shrink_pos, ranked[lose].1.shrink_pos);
+    let (sw, sl) = (ranked[win].1.score, ranked[lose].1.score);
+    if pw - pl < POSITION_LEAD || sw > sl {
+        return;
+    }
+    let other = ranked[lose].0.effect.name();
+    let note = format!(
+        "ranked above {other} by the held-out position ({:.0} % against {:.0} % of its residual): both move the position alone",
+        100.0 * pw,
+        100.0 * pl
+    );
+    rank_above(ranked, win, lose, note);
 }
 
 /// The distance law of the stroke friction replaces the count law when it leaves at most
@@ -1252,6 +1358,11 @@ const FILM_OVER_COUNT: f64 = 0.9;
 /// most this share of what one coefficient leaves of the fitting part (one more parameter
 /// must earn its place, as [`FILM_OVER_COUNT`]).
 const SPLIT_OVER_ONE: f64 = 0.9;
+
+/// A command delay with a first-order lag ([`special::fit_delay_lag`]) replaces the pure
+/// delay when it leaves at most this share of what the pure delay leaves of the fitting
+/// part (one more parameter must earn its place, as [`SPLIT_OVER_ONE`]).
+const LAG_OVER_PURE: f64 = 0.9;
 
 /// A play with one flank favoured is a constant force with a gap of width zero: when the
 /// constant force alone predicts the held-out part at least as well, the gap is not found.
