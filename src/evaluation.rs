@@ -51,10 +51,33 @@ pub struct Outcome {
     pub found_skew: String,
 }
 
+/// The effect of our generator that the diagnosis names by two effects of the list
+/// (see [`FLANK_PARTS`]).
+const FAVOURED_FLANK: &str = "backlash_asymmetry";
+
+/// The two effects a play with one flank favoured is made of: the play and the force that
+/// holds the carriage on one flank.
+const FLANK_PARTS: [&str; 2] = ["backlash", "constant_force"];
+
 impl Outcome {
     /// A single effect, and it is the first one selected.
     pub fn single_first(&self) -> bool {
-        self.hidden.len() == 1 && self.selected.first() == self.hidden.first()
+        let (Some(h), Some(first)) = (self.hidden.first(), self.selected.first()) else {
+            return false;
+        };
+        self.hidden.len() == 1
+            && (h == first
+                || (h == FAVOURED_FLANK && FLANK_PARTS.contains(&first.as_str()) && self.names(h)))
+    }
+    /// Whether the selection names the hidden effect `h`. A play with one flank favoured is
+    /// also named by its two parts, a play and a constant force, as the diagnosis reports it
+    /// (the model is the same), unless a constant force is hidden beside it.
+    fn names(&self, h: &str) -> bool {
+        let has = |e: &str| self.selected.iter().any(|s| s == e);
+        has(h)
+            || (h == FAVOURED_FLANK
+                && FLANK_PARTS.iter().all(|p| has(p))
+                && !self.hidden.iter().any(|x| x == FLANK_PARTS[1]))
     }
     /// A clean record flagged with an effect.
     pub fn false_alarm(&self) -> bool {
@@ -62,7 +85,7 @@ impl Outcome {
     }
     /// Two hidden effects, both selected.
     pub fn both_selected(&self) -> bool {
-        self.hidden.len() == 2 && self.hidden.iter().all(|h| self.selected.contains(h))
+        self.hidden.len() == 2 && self.hidden.iter().all(|h| self.names(h))
     }
 }
 
@@ -336,12 +359,17 @@ pub fn summary(outcomes: &[Outcome]) -> String {
     s
 }
 
-/// Rows: the hidden single effect (or none); columns: the first selected effect.
+/// Rows: the hidden single effect (or none); columns: the first selected effect. The
+/// `first` column counts as [`Outcome::single_first`] does (a favoured flank named by its
+/// two parts counts).
 fn confusion(outcomes: &[Outcome]) -> String {
     let mut rows: BTreeMap<String, BTreeMap<String, usize>> = BTreeMap::new();
+    let mut right: BTreeMap<String, usize> = BTreeMap::new();
     for o in outcomes.iter().filter(|o| o.hidden.len() <= 1) {
         let truth = o.hidden.first().cloned().unwrap_or_else(|| "none".into());
         let said = o.selected.first().cloned().unwrap_or_else(|| "none".into());
+        let hit = o.single_first() || (o.hidden.is_empty() && o.selected.is_empty());
+        *right.entry(truth.clone()).or_default() += usize::from(hit);
         *rows.entry(truth).or_default().entry(said).or_default() += 1;
     }
     let mut s = String::from(
@@ -349,9 +377,54 @@ fn confusion(outcomes: &[Outcome]) -> String {
     );
     for (t, r) in &rows {
         let n: usize = r.values().sum();
-        let right = r.get(t).copied().unwrap_or(0);
+        let right = right.get(t).copied().unwrap_or(0);
         let cells: Vec<String> = r.iter().map(|(v, c)| format!("{v} {c}")).collect();
         s += &format!("| {t} | {right}/{n} | {} |\n", cells.join(", "));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Outcome;
+
+    fn outcome(hidden: &[&str], selected: &[&str]) -> Outcome {
+        let v = |x: &[&str]| x.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
+        Outcome {
+            name: "case".into(),
+            hidden: v(hidden),
+            skewed: false,
+            verdict: selected.first().copied().unwrap_or("none").into(),
+            selected: v(selected),
+            ranked: vec![],
+            shrink: 0.0,
+            evidence: vec![],
+            truth_params: String::new(),
+            found_skew: String::new(),
+        }
+    }
+
+    #[test]
+    fn a_favoured_flank_is_named_by_a_play_and_a_constant_force() {
+        let flank = ["backlash_asymmetry"];
+        assert!(outcome(&flank, &["constant_force", "backlash"]).single_first());
+        assert!(outcome(&flank, &["backlash", "constant_force", "compliance"]).single_first());
+        assert!(outcome(&flank, &["backlash_asymmetry"]).single_first());
+        // One part alone, or the parts behind another effect, is not the effect named first.
+        assert!(!outcome(&flank, &["backlash"]).single_first());
+        assert!(!outcome(&flank, &["compliance", "backlash", "constant_force"]).single_first());
+        let pair = ["backlash_asymmetry", "lead_error"];
+        assert!(outcome(&pair, &["backlash", "lead_error", "constant_force"]).both_selected());
+        assert!(!outcome(&pair, &["backlash", "lead_error"]).both_selected());
+        // A constant force hidden beside it cannot name both.
+        let two = ["backlash_asymmetry", "constant_force"];
+        assert!(!outcome(&two, &["backlash", "constant_force"]).both_selected());
+        assert!(
+            outcome(
+                &["backlash", "constant_force"],
+                &["constant_force", "backlash"]
+            )
+            .both_selected()
+        );
+    }
 }

@@ -171,6 +171,11 @@ pub struct Engine<'a> {
     /// Samples of the moving average the held-out residuals of slow effects are scored
     /// through when asked (1: none).
     pub smooth_n: usize,
+    /// Mean square of the position residual that no replay can take away, m²: the rounding
+    /// of a scale grid proven by its signature (a grid of `q` rounds with a spread of
+    /// `q²/12`). Scores of the effects that act within a few samples are taken on what lies
+    /// above it (0: none).
+    pub pos_floor_ms: f64,
     sims: AtomicUsize,
     /// Replays expected in all (for the progress bar).
     pub sims_expected: AtomicUsize,
@@ -194,6 +199,7 @@ impl<'a> Engine<'a> {
             corr_len: 1.0,
             hold_mask: vec![],
             smooth_n: 1,
+            pos_floor_ms: 0.0,
             sims: AtomicUsize::new(0),
             sims_expected: AtomicUsize::new(200),
         };
@@ -385,32 +391,54 @@ impl<'a> Engine<'a> {
         smooth: bool,
     ) -> Scores {
         if smooth && self.smooth_n > 1 {
+            let n = self.smooth_n;
             let sm = |e: &Eval| Eval {
-                hold_pos: moving_average(&e.hold_pos, self.smooth_n),
-                hold_force: e
-                    .hold_force
-                    .as_deref()
-                    .map(|f| moving_average(f, self.smooth_n)),
+                hold_pos: moving_average(&e.hold_pos, n),
+                hold_force: e.hold_force.as_deref().map(|f| moving_average(f, n)),
                 ..e.clone()
             };
-            return self.scores_of(&sm(base), &sm(after), n_params, mask);
+            return self.scores_of(&sm(base), &sm(after), n_params, mask, 0.0);
         }
-        self.scores_of(base, after, n_params, mask)
+        self.scores_of(base, after, n_params, mask, self.pos_floor_ms)
     }
 
-    fn scores_of(&self, base: &Eval, after: &Eval, n_params: usize, mask: bool) -> Scores {
+    fn scores_of(
+        &self,
+        base: &Eval,
+        after: &Eval,
+        n_params: usize,
+        mask: bool,
+        floor_ms: f64,
+    ) -> Scores {
         let hj = |e: &Eval| {
-            if mask {
-                let f = e.hold_force.as_deref().map(|f| self.masked(f));
-                self.j(&self.masked(&e.hold_pos), f.as_deref())
+            use std::borrow::Cow;
+            let (pos, force): (Cow<[f64]>, Option<Cow<[f64]>>) = if mask {
+                (
+                    Cow::Owned(self.masked(&e.hold_pos)),
+                    e.hold_force.as_deref().map(|f| Cow::Owned(self.masked(f))),
+                )
             } else {
-                self.j(&e.hold_pos, e.hold_force.as_deref())
+                (
+                    Cow::Borrowed(&e.hold_pos),
+                    e.hold_force.as_deref().map(Cow::Borrowed),
+                )
+            };
+            let p = above(&pos, floor_ms) / self.sig_pos;
+            match force.as_deref() {
+                Some(f) if self.has_force => {
+                    let q = rms(f) / self.sig_force;
+                    (0.5 * (p * p + q * q)).sqrt()
+                }
+                _ => p,
             }
         };
         let jb = hj(base);
         let ja = hj(after);
         let shrink = if jb > 0.0 { 1.0 - ja / jb } else { 0.0 };
-        let (hb, ha) = (rms(&base.hold_pos), rms(&after.hold_pos));
+        let (hb, ha) = (
+            above(&base.hold_pos, floor_ms),
+            above(&after.hold_pos, floor_ms),
+        );
         let shrink_force = match (&base.hold_force, &after.hold_force) {
             (Some(b), Some(a)) if rms(b) > 0.0 => Some(1.0 - rms(a) / rms(b)),
             _ => None,
@@ -427,6 +455,17 @@ impl<'a> Engine<'a> {
             score: shrink - PENALTY_PER_PARAM * n_params as f64,
             significant: false,
         }
+    }
+}
+
+/// Root mean square of `v` above a mean square `floor_ms` that is no one's to explain
+/// (0 when `v` lies within it).
+fn above(v: &[f64], floor_ms: f64) -> f64 {
+    let r = rms(v);
+    if floor_ms > 0.0 {
+        (r * r - floor_ms).max(0.0).sqrt()
+    } else {
+        r
     }
 }
 

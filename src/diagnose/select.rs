@@ -6,7 +6,7 @@
 
 use super::DiagnoseError;
 use super::calibrate::{CalParam, Calibration};
-use super::candidates::{self, Applied, Context, Fitted, MIN_SHRINK, Selected, Signals};
+use super::candidates::{self, Applied, Context, Fitted, MIN_SHRINK, Selected, Signals, add_note};
 use super::effects::Effect;
 use super::engine::{Cand, Engine, Eval, Scores};
 use super::lm::{self, Param};
@@ -97,6 +97,7 @@ pub fn run(
         // Each round weighs position and force by what is left of each on its base: an
         // effect that shows only in the position (a lead error, thermal growth) is not
         // drowned by a force residual the first effect left larger.
+        eng.pos_floor_ms = grid_floor_ms(&deferred);
         eng.set_norm(&base_eval);
         if !deferred.is_empty() {
             eng.smooth_n = smooth_samples(eng.split.main.t3_s);
@@ -146,6 +147,7 @@ pub fn run(
     }
     eng.restore_norm(norm0);
     eng.smooth_n = 1;
+    eng.pos_floor_ms = 0.0;
     let eng: &Engine = eng;
     if !deferred.is_empty() {
         for a in &deferred {
@@ -164,8 +166,9 @@ fn named(
     nominal: &Cand,
     mut selected: Vec<(Fitted, Scores)>,
     mut ranking: Vec<(Fitted, Scores)>,
-    j: Joint,
+    mut j: Joint,
 ) -> Result<Outcome, DiagnoseError> {
+    split_favoured_flank(&mut selected, &mut ranking, &mut j.params);
     let adds = what_each_adds(eng, nominal, &selected, &j)?;
     let final_params = name_order(
         &mut selected,
@@ -185,64 +188,99 @@ fn named(
 }
 
 /// The selected effects as they are named: ordered by what each adds to the final model
-/// (see [`by_what_each_adds`]), merged (see [`merge_favoured_flank`]) and a delay a skew
-/// makes named last (see [`delay_a_skew_makes_last`]); returns their final parameters in
+/// (see [`by_what_each_adds`]; a favoured flank is split first, see
+/// [`split_favoured_flank`]) and a delay a skew makes named last (see [`delay_a_skew_makes_last`]); returns their final parameters in
 /// that order.
 fn name_order(
-    selected: &mut Vec<(Fitted, Scores)>,
+    selected: &mut [(Fitted, Scores)],
     ranking: &mut [(Fitted, Scores)],
     mut params: Vec<Vec<f64>>,
     adds: &[f64],
     t3_s: f64,
 ) -> Vec<Vec<f64>> {
     by_what_each_adds(selected, &mut params, ranking, adds);
-    let mut params = merge_favoured_flank(selected, params);
     delay_a_skew_makes_last(selected, &mut params, ranking, t3_s);
     params
 }
 
-/// A play and a constant force selected side by side are one effect of the list: a play
-/// with one flank favoured, which [`Effect::BacklashAsymmetry`] applies as exactly the two
-/// (the gap's width and an offset force on the table). They are named as that one effect,
-/// at the place of the first of them, with the two's final parameters; the model is the
-/// same. Seen on the independent seeds 2323–3030: 10 of 24 plays with a biased carriage
-/// were reported as the pair, and 6 of 11 mixtures that hid one.
-fn merge_favoured_flank(
+/// A play with one flank favoured is named as the two effects of the list it is
+/// made of: a play and a constant force. [`Effect::BacklashAsymmetry`] applies exactly the
+/// two (the gap's width and an offset force on the table), so the model is the same; but a
+/// record with a play and a constant force (a load, a cable carrier) is a two-effect record,
+/// and the user's list of effects has no third name for it. Each of the two gets a note that
+/// says they make one favoured flank (so does a play and a constant force selected side by
+/// side). Done before the two are ordered by what each adds. Beside a play already selected
+/// it is named by its force alone (the model has one play); left alone beside a constant
+/// force.
+fn split_favoured_flank(
     selected: &mut Vec<(Fitted, Scores)>,
-    mut params: Vec<Vec<f64>>,
-) -> Vec<Vec<f64>> {
-    let at = |e: Effect| {
-        selected.iter().position(|(f, _)| {
-            f.effect == e
-                && matches!(&f.applied, Applied::Params(a, th) if *a == e && th.len() == 1)
-        })
+    ranking: &mut [(Fitted, Scores)],
+    params: &mut Vec<Vec<f64>>,
+) {
+    split_asymmetry(selected, params);
+    let at = |e: Effect| selected.iter().position(|(f, _)| f.effect == e);
+    let (Some(b), Some(c)) = (at(Effect::Backlash), at(Effect::ConstantForce)) else {
+        return;
     };
-    let (Some(ib), Some(ic)) = (at(Effect::Backlash), at(Effect::ConstantForce)) else {
-        return params;
+    let first = |i: usize| params.get(i).and_then(|p| p.first()).copied();
+    let (Some(w_um), Some(force_n)) = (first(b), first(c)) else {
+        return;
     };
-    let (Some(wb), Some(fc)) = (
-        params.get(ib).and_then(|p| p.first()).copied(),
-        params.get(ic).and_then(|p| p.first()).copied(),
-    ) else {
-        return params;
+    let note = |other: &str| {
+        format!(
+            "with the {other} beside it: one flank of the play favoured (backlash_asymmetry's model, width {w_um:.3} µm, force {force_n:.3} N)"
+        )
     };
-    let (first, second) = (ib.min(ic), ib.max(ic));
-    let std_of = |i: usize| selected[i].0.std.first().copied().unwrap_or(f64::NAN);
-    let std = vec![std_of(ib), std_of(ic)];
-    let theta = vec![wb, fc];
-    let e = Effect::BacklashAsymmetry;
-    let (f, _) = &mut selected[first];
-    f.effect = e;
-    f.keys = e.params().iter().map(|d| d.key.to_owned()).collect();
-    f.theta.clone_from(&theta);
-    f.std = std;
-    f.n_params = theta.len();
-    f.applied = Applied::Params(e, theta.clone());
-    f.note = "a play and a constant force found together: one flank favoured".into();
-    params[first] = theta;
-    selected.remove(second);
-    params.remove(second);
-    params
+    for (g, _) in selected.iter_mut().chain(ranking.iter_mut()) {
+        match g.effect {
+            Effect::Backlash => add_note(g, note("constant force")),
+            Effect::ConstantForce => add_note(g, note("play")),
+            _ => {}
+        }
+    }
+}
+
+/// Replaces a selected [`Effect::BacklashAsymmetry`] by a play and a constant force (by the
+/// force alone beside a play already selected), with its final parameters `params`.
+fn split_asymmetry(selected: &mut Vec<(Fitted, Scores)>, params: &mut Vec<Vec<f64>>) {
+    let has = |sel: &[(Fitted, Scores)], e: Effect| sel.iter().any(|(f, _)| f.effect == e);
+    if has(selected, Effect::ConstantForce) {
+        return;
+    }
+    let play_beside = has(selected, Effect::Backlash);
+    let Some(i) = selected.iter().position(|(f, _)| {
+        matches!(&f.applied, Applied::Params(Effect::BacklashAsymmetry, th) if th.len() == 2)
+    }) else {
+        return;
+    };
+    let Some([w_um, force_n]) = params
+        .get(i)
+        .and_then(|p| <[f64; 2]>::try_from(p.as_slice()).ok())
+    else {
+        return;
+    };
+    let (f, s) = selected[i].clone();
+    let std = |k: usize| f.std.get(k).copied().unwrap_or(f64::NAN);
+    let part = |e: Effect, theta: f64, std: f64| {
+        let mut g = f.clone();
+        g.effect = e;
+        g.keys = e.params().iter().map(|d| d.key.to_owned()).collect();
+        g.theta = vec![theta];
+        g.std = vec![std];
+        g.n_params = 1;
+        g.applied = Applied::Params(e, vec![theta]);
+        g.note.clear();
+        g
+    };
+    if play_beside {
+        selected[i] = (part(Effect::ConstantForce, force_n, std(1)), s);
+        params[i] = vec![force_n];
+        return;
+    }
+    selected[i] = (part(Effect::Backlash, w_um, std(0)), s);
+    selected.insert(i + 1, (part(Effect::ConstantForce, force_n, std(1)), s));
+    params[i] = vec![w_um];
+    params.insert(i + 1, vec![force_n]);
 }
 
 /// A command delay of at most this many samples is what a command channel logged early
@@ -374,6 +412,21 @@ fn take_refitted(selected: &mut [(Fitted, Scores)], sel_theta: &[f64]) {
 fn proven_only(f: &Fitted) -> bool {
     f.effect == Effect::Quantization
         || (f.evidence.pass && f.evidence.figures.contains_key("hunting_share"))
+}
+
+/// The spread a deferred grid's rounding adds to the position residual, m² (`q²/12`), or 0.
+/// Rounding cannot be predicted sample by sample; an effect found later is scored on what
+/// lies above it, else a coarse grid dilutes a delay's or a spring's share of the residual.
+fn grid_floor_ms(deferred: &[Applied]) -> f64 {
+    deferred
+        .iter()
+        .find_map(|a| match a {
+            Applied::Params(Effect::Quantization, th) => th.first().copied(),
+            _ => None,
+        })
+        .map(crate::units::um_to_m)
+        .filter(|q| q.is_finite() && *q > 0.0)
+        .map_or(0.0, |q| q * q / 12.0)
 }
 
 /// The selected effects' parameters and the calibration ratios, fitted together; kept only

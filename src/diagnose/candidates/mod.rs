@@ -1307,7 +1307,7 @@ fn count_with_note(f: &mut Fitted, s: &mut Scores, note: String) {
 }
 
 /// Adds `note` to what `f`'s note already says.
-fn add_note(f: &mut Fitted, note: String) {
+pub(crate) fn add_note(f: &mut Fitted, note: String) {
     f.note = if f.note.is_empty() {
         note
     } else {
@@ -1522,6 +1522,37 @@ fn lead_beyond_holdout(f: &Fitted, s: &Scores) -> bool {
         && s.shrink_force.is_none_or(|x| x > LEAD_FORCE_SLACK)
 }
 
+/// A command delay that position and force both show as a lag of more than a channel skew
+/// can make ([`DELAY_BEYOND_SKEW`] samples) counts when it takes this share of the held-out
+/// position residual away and leaves the force no worse: beside a force effect the model
+/// lacks (a disturbance, a stroke friction), the force residual the delay cannot touch
+/// dilutes its combined shrink to a few per cent. Read off the traces of the independent
+/// seeds 2323–3434, 3838–4646 (two-effect records) and 4747 (all records): the delays of
+/// 1.3–1.7 samples beside a disturbance or a stroke friction took 0.45–0.73 of the held-out
+/// position with the force at −0.002–+0.009, and combined 0.01–0.08; every record whose
+/// delay candidate took ≥ 0.3 of the position without a delay in it (a clean skewed record,
+/// a constant force, a compliance) lagged 0.22–0.60 samples.
+const DELAY_POS_SHRINK: f64 = 0.4;
+
+/// The lag, in samples, beyond which [`DELAY_POS_SHRINK`] applies: a channel logged up to a
+/// sample off its instant makes a lag of up to a sample.
+const DELAY_BEYOND_SKEW: f64 = 1.25;
+
+/// How much worse a delay counted by its position may leave the held-out force residual.
+const DELAY_FORCE_SLACK: f64 = -0.01;
+
+/// Whether `f` is a command delay that [`DELAY_POS_SHRINK`] lets count.
+fn delay_in_position(f: &Fitted, s: &Scores) -> bool {
+    f.effect == Effect::CommandDelay
+        && f.evidence.pass
+        && f.evidence
+            .figures
+            .get("lag_samples")
+            .is_some_and(|l| *l > DELAY_BEYOND_SKEW)
+        && s.shrink_pos >= DELAY_POS_SHRINK
+        && s.shrink_force.is_some_and(|x| x >= DELAY_FORCE_SLACK)
+}
+
 /// How much worse a lead error may leave the held-out force residual and still count by
 /// its position shrink: on a scale-fed axis the table moves the motor a little, and with
 /// it the force (2727 case_051, a pitch table alone: 0.90 of the position, −0.022 of the
@@ -1675,6 +1706,7 @@ fn score(ctx: &Context, f: &Fitted, polished: Option<&Eval>) -> Scores {
                 || lead_in_position(f, &s, shape)
                 || lead_beyond_holdout(f, &s)
                 || growth_in_position(f, &s)
+                || delay_in_position(f, &s)
                 || force_in_force(f, &s))
             || (ctx.selected.is_empty() && compliance_in_both(f, &s)))
             && (fit_a < fit_b || lead_beside_growth(ctx, f))
