@@ -1234,6 +1234,44 @@ fn a_viscous_friction_that_differs_by_direction_is_named_with_its_split() {
 }
 
 #[test]
+fn a_split_that_stands_far_beyond_its_noise_counts_without_the_force_share() {
+    // Single-effect record 21 of the independent seed 4747: an extra viscous coefficient of
+    // 20.4 N·s/m moving + and 89.9 N·s/m moving −. Fitted with its split, it took 70 % of
+    // the held-out position and 25 % of the force, short of half the position's share
+    // (FORCE_SHARE), and the verdict was `none`, while the |v| term of the force residual
+    // stood at 328 standard errors (SPLIT_T_ALONE): no loop mismatch leaves a force that
+    // keeps its sign both ways. The split is (20.4 − 89.9)/2 = −34.8 N·s/m.
+    let r = named_single(4747, 21, "viscous_friction");
+    let v = ranked(&r, "viscous_friction");
+    let split = v.params.get("split_n_s_per_m").copied().unwrap_or(f64::NAN);
+    assert!(
+        (split + 34.8).abs() < 0.15 * 34.8,
+        "split {split} N·s/m, want −34.8 ± 15 %: {v:#?}"
+    );
+}
+
+#[test]
+fn a_stroke_friction_the_held_out_end_hardly_exercises_counts_by_its_fit() {
+    // Single-effect record 24 of the independent seed 4747: friction rising by 40.4 N over
+    // strokes shorter than 7.5 mm. Its regression stood at 11.7 standard errors and its
+    // replay took 77 % of the fitting part, but 13 % of the held-out part (9 % after the
+    // penalty, below MIN_SHRINK), and the verdict was `none` (STROKE_FIT_SHRINK).
+    let r = named_single(4747, 24, "stroke_friction");
+    let e = ranked(&r, "stroke_friction");
+    assert!(e.note.contains("fitting part"), "{e:#?}");
+    let rise = e.params.get("rise_n").copied().unwrap_or(f64::NAN);
+    assert!(
+        (rise - 40.4).abs() < 0.15 * 40.4,
+        "rise {rise} N (true 40.4): {e:#?}"
+    );
+    let pitch = e.params.get("pitch_mm").copied().unwrap_or(f64::NAN);
+    assert!(
+        (0.8 * 7.52..=1.6 * 7.52).contains(&pitch),
+        "pitch {pitch} mm (true 7.52): {e:#?}"
+    );
+}
+
+#[test]
 fn a_screw_growth_beside_a_friction_counts_by_its_position_shrink() {
     // Two-effect record 64 of the independent seed 2626: a screw growth of 9.6 µm beside a
     // Stribeck friction. Once the friction is found, the growth takes 29 % of the held-out
