@@ -49,6 +49,9 @@ pub struct Outcome {
     pub truth_params: String,
     /// The channel skew the diagnosis found (a measurement finding), e.g. `force-1.00`.
     pub found_skew: String,
+    /// Wall time of the diagnosis alone (the record's generation not counted), s. Two
+    /// cases run at once, so a figure against the bar wants `--only` one case.
+    pub diagnose_s: f64,
 }
 
 /// The effect of our generator that the diagnosis names by two effects of the list
@@ -190,7 +193,7 @@ fn diagnose_one(p: &Prepared) -> Result<Report, DiagnoseError> {
     diagnose::diagnose(&p.preset, &p.record, None, &Options::default(), &progress)
 }
 
-fn outcome(p: &Prepared, r: &Report) -> Outcome {
+fn outcome(p: &Prepared, r: &Report, diagnose_s: f64) -> Outcome {
     Outcome {
         name: p.name.clone(),
         hidden: p.hidden.clone(),
@@ -218,6 +221,7 @@ fn outcome(p: &Prepared, r: &Report) -> Outcome {
                 s.samples
             )
         }),
+        diagnose_s,
     }
 }
 
@@ -258,7 +262,10 @@ pub fn run(
                         Generator::Own => prepare_own(cfg.seed, i, cfg.duration_s),
                         Generator::Independent => prepare_independent(&specs[i]),
                     };
-                    let res = prepared.and_then(|p| diagnose_one(&p).map(|r| outcome(&p, &r)));
+                    let res = prepared.and_then(|p| {
+                        let t0 = std::time::Instant::now();
+                        diagnose_one(&p).map(|r| outcome(&p, &r, t0.elapsed().as_secs_f64()))
+                    });
                     match res {
                         Ok(o) => {
                             line(&o);
@@ -288,7 +295,7 @@ pub fn run(
 /// One case as a line of the evaluation log.
 pub fn case_line(o: &Outcome) -> String {
     format!(
-        "{:<10} hidden={:<44}{} verdict={:<34} selected={:<44} shrink={:>5.1}% ranked {} | {} | found skew {}",
+        "{:<10} hidden={:<44}{} verdict={:<34} selected={:<44} shrink={:>5.1}% ranked {} | {} | found skew {} | diagnosis {:.1} s",
         o.name,
         if o.hidden.is_empty() {
             "none".to_owned()
@@ -305,7 +312,8 @@ pub fn case_line(o: &Outcome) -> String {
         o.shrink * 100.0,
         o.ranked.join(" "),
         o.truth_params,
-        o.found_skew
+        o.found_skew,
+        o.diagnose_s
     )
 }
 
@@ -401,6 +409,7 @@ mod tests {
             evidence: vec![],
             truth_params: String::new(),
             found_skew: String::new(),
+            diagnose_s: 0.0,
         }
     }
 

@@ -532,7 +532,10 @@ fn joint_refit(
         }
         c
     };
-    let rows = |th: &[f64]| Ok(Some(eng.lm_rows(&eng.sim_fit(&build(th))?)));
+    let slow = selected
+        .iter()
+        .any(|(f, _)| f.refit && f.effect == Effect::ThermalGrowth);
+    let rows = |th: &[f64]| Ok(Some(eng.lm_rows(&eng.sim_fit_as(&build(th), slow)?)));
     let fit = lm::fit(&start, &params, &rows, 0.03, 4)?;
     let cand = build(&fit.theta);
     let eval = eng.evaluate(&cand)?;

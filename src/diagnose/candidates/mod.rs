@@ -538,13 +538,20 @@ impl Context<'_, '_> {
             make(&th[..n_e]).apply(&mut c);
             c
         };
-        let rows = |th: &[f64]| Ok(Some(self.eng.lm_rows(&self.eng.sim_fit(&build(th))?)));
+        let slow = self.growth_in_fit(effect, joint);
+        let rows = |th: &[f64]| {
+            Ok(Some(
+                self.eng.lm_rows(&self.eng.sim_fit_as(&build(th), slow)?),
+            ))
+        };
         let all_starts = first.into_iter().map(|mut s| {
             s.extend(free.iter().map(|&i| ratios0[i]));
             s.extend(sel0.iter().copied());
             s
         });
-        let Some((f, std)) = self.best_lm_within(all_starts, &params, &rows, patience)? else {
+        let Some((f, std)) =
+            self.best_lm_strided(all_starts, &params, &rows, patience, self.eng.n_lm(slow))?
+        else {
             return Ok(None);
         };
         let cand = build(&f.theta);
@@ -588,6 +595,19 @@ impl Context<'_, '_> {
         }))
     }
 
+    /// Whether a fit of `effect` (`joint`: refitting the selected effects beside it) has a
+    /// screw's growth in it, which needs the whole fitting part (see
+    /// `engine::MAX_LM_SAMPLES_SLOW`).
+    fn growth_in_fit(&self, effect: Effect, joint: bool) -> bool {
+        effect == Effect::ThermalGrowth
+            || (joint
+                && self
+                    .selected
+                    .iter()
+                    .filter_map(Selected::refit_params)
+                    .any(|(e, _)| e == Effect::ThermalGrowth))
+    }
+
     /// The lowest-cost Levenberg–Marquardt fit over `starts`, with one standard deviation of
     /// each parameter (rows correlated over the record's correlation length).
     pub fn best_lm(
@@ -607,6 +627,19 @@ impl Context<'_, '_> {
         rows: &lm::Rows<'_>,
         patience: usize,
     ) -> Result<Option<(lm::LmFit, Vec<f64>)>, DiagnoseError> {
+        self.best_lm_strided(starts, params, rows, patience, self.eng.n_lm(false))
+    }
+
+    /// [`Context::best_lm_within`] for rows from replays of `n_lm` samples (their stride
+    /// sets how many rows one correlation length holds).
+    fn best_lm_strided(
+        &self,
+        starts: impl IntoIterator<Item = Vec<f64>>,
+        params: &[Param],
+        rows: &lm::Rows<'_>,
+        patience: usize,
+        n_lm: usize,
+    ) -> Result<Option<(lm::LmFit, Vec<f64>)>, DiagnoseError> {
         let mut best: Option<lm::LmFit> = None;
         for start in starts {
             let f = lm::fit(&start, params, rows, 0.03, patience)?;
@@ -617,7 +650,7 @@ impl Context<'_, '_> {
         Ok(best.map(|f| {
             let std = lm::std_devs(
                 &f,
-                1.0 / (self.sig.corr_len / self.eng.stride as f64).max(1.0),
+                1.0 / (self.sig.corr_len / Engine::stride_of(n_lm) as f64).max(1.0),
             );
             (f, std)
         }))

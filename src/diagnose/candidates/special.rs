@@ -109,6 +109,12 @@ fn lead(ctx: &Context) -> Evidence {
     .with("explained_share", p.explained)
 }
 
+/// How far the period found in the binned spectrum is sharpened on the samples themselves
+/// at most (see [`evidence::sharpen_period`]), and less where three periods' worth of the
+/// travel is less: 505 case_074's 2.314 mm pitch was read as 2.269 mm, and its harmonics
+/// fitted there took 1 % of the held-out position residual.
+const LEAD_PERIOD_SPAN: f64 = 0.05;
+
 /// The period of the position residual along the travel, searched where the command holds
 /// a feed (see [`quiet_rows`]) and less the mean residual at each feed. The dynamics'
 /// residual comes back at the same places on every pass, and a friction's or a gain's
@@ -121,13 +127,7 @@ fn lead(ctx: &Context) -> Evidence {
 /// the feeds' means would take part of) are then fitted at that period on every sample, as
 /// before (fitted on the quiet samples less the means, 505 case_074's pitch took 11 % of
 /// the held-out position residual instead of 14 %). When fewer than half the samples hold
-/// a feed, every sample is searched as it is. `AXB_LEAD_ALL`: always so.
-/// How far the period found in the binned spectrum is sharpened on the samples themselves
-/// at most (see [`evidence::sharpen_period`]), and less where three periods' worth of the
-/// travel is less: 505 case_074's 2.314 mm pitch was read as 2.269 mm, and its harmonics
-/// fitted there took 1 % of the held-out position residual.
-const LEAD_PERIOD_SPAN: f64 = 0.05;
-
+/// a feed, every sample is searched as it is.
 fn lead_period(ctx: &Context) -> Option<evidence::PositionPeriodic> {
     let sig = ctx.sig;
     let n = sig
@@ -136,7 +136,7 @@ fn lead_period(ctx: &Context) -> Option<evidence::PositionPeriodic> {
         .min(sig.r_pos.len())
         .min(sig.cmd_vel_mps.len());
     let rows = quiet_rows(ctx, 0..n);
-    if 2 * rows.len() < n || std::env::var_os("AXB_LEAD_ALL").is_some() {
+    if 2 * rows.len() < n {
         return evidence::periodic_in_position(
             &sig.pos_m[..n],
             &sig.r_pos[..n],

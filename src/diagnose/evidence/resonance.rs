@@ -53,20 +53,12 @@ pub fn resonance(
     f_hi_hz: f64,
     reference: Option<&[f64]>,
 ) -> Option<Resonance> {
-    let n = y.len();
-    if n < SEG_MIN || !(positive(dt_s) && dt_s.is_finite()) || !ordered(0.0, f_lo_hz) {
-        return None;
-    }
-    if !positive(f_hi_hz - f_lo_hz) {
-        return None;
-    }
-    let nseg = prev_pow2(n / 8).clamp(SEG_MIN, SEG_MAX).min(prev_pow2(n));
-    let df = 1.0 / (nseg as f64 * dt_s);
-    let k_lo = ((f_lo_hz / df).ceil() as usize).max(1);
-    let k_hi = ((f_hi_hz / df).floor() as usize).min(nseg / 2);
-    if k_hi < k_lo + 4 {
-        return None;
-    }
+    let Band {
+        nseg,
+        df,
+        k_lo,
+        k_hi,
+    } = Band::of(y.len(), dt_s, f_lo_hz, f_hi_hz)?;
     let py = welch(&normalized(y)?.0, nseg)?;
     let med = median(&mut py[k_lo..=k_hi].to_vec());
     if !positive(med) {
@@ -129,19 +121,12 @@ pub struct Tone {
 /// when a loop hunts. None under the same conditions as `resonance`.
 pub fn tone(y: &[f64], dt_s: f64, f_lo_hz: f64, f_hi_hz: f64) -> Option<Tone> {
     let n = y.len();
-    if n < SEG_MIN || !(positive(dt_s) && dt_s.is_finite()) || !ordered(0.0, f_lo_hz) {
-        return None;
-    }
-    if !positive(f_hi_hz - f_lo_hz) {
-        return None;
-    }
-    let nseg = prev_pow2(n / 8).clamp(SEG_MIN, SEG_MAX).min(prev_pow2(n));
-    let df = 1.0 / (nseg as f64 * dt_s);
-    let k_lo = ((f_lo_hz / df).ceil() as usize).max(1);
-    let k_hi = ((f_hi_hz / df).floor() as usize).min(nseg / 2);
-    if k_hi < k_lo + 4 {
-        return None;
-    }
+    let Band {
+        nseg,
+        df,
+        k_lo,
+        k_hi,
+    } = Band::of(n, dt_s, f_lo_hz, f_hi_hz)?;
     let (yn, scale) = normalized(y)?;
     let py = welch(&yn, nseg)?;
     let k = (k_lo..=k_hi).max_by(|&a, &b| py[a].total_cmp(&py[b]))?;
@@ -162,6 +147,40 @@ pub fn tone(y: &[f64], dt_s: f64, f_lo_hz: f64, f_hi_hz: f64) -> Option<Tone> {
         rms: scale * (var * peak / total).sqrt(),
     };
     (out.share.is_finite() && out.rms.is_finite()).then_some(out)
+}
+
+/// The Welch segment and the bins of a band [f_lo_hz, f_hi_hz] that [`resonance`] and
+/// [`tone`] both search: one segment length per record length, so the two read the same
+/// spectrum.
+struct Band {
+    nseg: usize,
+    /// Bin spacing, Hz.
+    df: f64,
+    k_lo: usize,
+    k_hi: usize,
+}
+
+impl Band {
+    /// None for a record shorter than [`SEG_MIN`], a bad sample period, an empty band or
+    /// one narrower than five bins.
+    fn of(n: usize, dt_s: f64, f_lo_hz: f64, f_hi_hz: f64) -> Option<Band> {
+        if n < SEG_MIN || !(positive(dt_s) && dt_s.is_finite()) || !ordered(0.0, f_lo_hz) {
+            return None;
+        }
+        if !positive(f_hi_hz - f_lo_hz) {
+            return None;
+        }
+        let nseg = prev_pow2(n / 8).clamp(SEG_MIN, SEG_MAX).min(prev_pow2(n));
+        let df = 1.0 / (nseg as f64 * dt_s);
+        let k_lo = ((f_lo_hz / df).ceil() as usize).max(1);
+        let k_hi = ((f_hi_hz / df).floor() as usize).min(nseg / 2);
+        (k_hi >= k_lo + 4).then_some(Band {
+            nseg,
+            df,
+            k_lo,
+            k_hi,
+        })
+    }
 }
 
 /// Largest power of two ≤ n (1 for n = 0).
