@@ -7,6 +7,8 @@
 //! screw's own frame (`x_t` is where the nut is along an ideal screw); thermal growth and lead
 //! error turn that into where the table really is.
 
+use std::cell::Cell;
+
 use crate::preset::rules::MAX_SUBSTEPS;
 use crate::preset::{AxisParams, Coupling, Crossbeam, Feedback, PosSource};
 use crate::units;
@@ -441,6 +443,8 @@ struct LeadErr {
     cumulative: f64,
     /// (position m, error m)
     table: Vec<(f64, f64)>,
+    /// The table's segment the last lookup found (see `table::interp_slope_near`).
+    segment: Cell<usize>,
 }
 
 impl LeadErr {
@@ -470,7 +474,7 @@ impl LeadErr {
         let (table, table_slope) = if self.table.is_empty() {
             (0.0, 0.0)
         } else {
-            crate::table::interp_slope(&self.table, x_m)
+            crate::table::interp_slope_near(&self.table, x_m, &self.segment)
         };
         (
             self.amplitude_m * s + self.cumulative * x_m + table,
@@ -705,6 +709,7 @@ impl AxisPlant {
                 phase_turns: 0.0,
                 cumulative: 0.0,
                 table: vec![],
+                segment: Cell::new(0),
             },
             motor_q_m: None,
             scale_q_m: None,
@@ -876,6 +881,7 @@ impl AxisPlant {
                 .iter()
                 .map(|&(x, e)| (units::mm_to_m(x), units::um_to_m(e)))
                 .collect(),
+            segment: Cell::new(0),
         };
         let e = &a.encoder;
         let q = |q: f64| (q, 1.0 / q);

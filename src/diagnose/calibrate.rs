@@ -13,7 +13,7 @@
 //! channel alone is a logging skew, a measurement finding, and is removed from the record
 //! before any effect is tested.
 
-use std::cell::RefCell;
+use std::sync::Mutex;
 
 use serde::Serialize;
 
@@ -354,27 +354,26 @@ fn fit_ratios(
     }
     // The shifts only move the simulated output, so a replay is reused while the ratios
     // stay the same.
-    let cache: RefCell<Option<(Vec<f64>, SimOut)>> = RefCell::new(None);
+    let cache: Mutex<Option<(Vec<f64>, SimOut)>> = Mutex::new(None);
     let rows = |th: &[f64]| {
         let model_part = &th[..m];
-        let hit = cache
-            .borrow()
-            .as_ref()
-            .is_some_and(|(r, _)| r == model_part);
-        if !hit {
-            let s = eng.sim_fit(&with_ratios(base, ps, &th[..n], &th[n..m]))?;
-            *cache.borrow_mut() = Some((model_part.to_vec(), s));
-        }
-        let c = cache.borrow();
-        let Some((_, s)) = c.as_ref() else {
-            return Ok(None);
-        };
         let (up, uf) = if shifts {
             (th[m], th[m + 1])
         } else {
             (0.0, 0.0)
         };
-        Ok(Some(eng.lm_rows_shifted(s, up, uf)))
+        if let Ok(c) = cache.lock()
+            && let Some((r, s)) = c.as_ref()
+            && r == model_part
+        {
+            return Ok(Some(eng.lm_rows_shifted(s, up, uf)));
+        }
+        let s = eng.sim_fit(&with_ratios(base, ps, &th[..n], &th[n..m]))?;
+        let rows = eng.lm_rows_shifted(&s, up, uf);
+        if let Ok(mut c) = cache.lock() {
+            *c = Some((model_part.to_vec(), s));
+        }
+        Ok(Some(rows))
     };
     let mut start = from
         .filter(|r| r.len() == n)
@@ -389,6 +388,20 @@ fn fit_ratios(
     } else {
         (0.0, 0.0)
     };
+    // The shifts are judged on the fitted model's replay (whichever replay the solver's
+    // threads left in the cache).
+    if shifts {
+        let fitted = &f.theta[..m];
+        let held = cache
+            .lock()
+            .is_ok_and(|c| c.as_ref().is_some_and(|(r, _)| r == fitted));
+        if !held {
+            let s = eng.sim_fit(&with_ratios(base, ps, &f.theta[..n], &f.theta[n..m]))?;
+            if let Ok(mut c) = cache.lock() {
+                *c = Some((fitted.to_vec(), s));
+            }
+        }
+    }
     let (up, uf) = match shift_fit {
         ShiftFit::No => (up, uf),
         ShiftFit::Free => judge_shifts(eng, &cache, up, uf, None),
@@ -416,12 +429,14 @@ fn fit_ratios(
 /// ones stay: a second diagnosis on a reading that is hardly better is not run.
 fn judge_shifts(
     eng: &Engine,
-    cache: &RefCell<Option<(Vec<f64>, SimOut)>>,
+    cache: &Mutex<Option<(Vec<f64>, SimOut)>>,
     up: f64,
     uf: f64,
     prior: Option<(f64, f64)>,
 ) -> (f64, f64) {
-    let c = cache.borrow();
+    let Ok(c) = cache.lock() else {
+        return (up, uf);
+    };
     let Some((_, s)) = c.as_ref() else {
         return (up, uf);
     };

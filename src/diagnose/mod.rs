@@ -513,10 +513,32 @@ impl Stage<'_> {
         // force the model lacks (a large viscous or stroke friction makes the loop follow
         // late): the two readings are diagnosed each, and the realigned one is kept unless
         // the other leaves clearly less of the held-out part.
-        let (aligned, j_aligned, cand_aligned) =
-            progress.within(0.0, 0.49, |p| self.run(cal, p))?;
-        let (lagging, j_lagging, cand_lagging) =
-            progress.within(0.49, 0.51, |p| self.run(unaligned, p))?;
+        // The two are independent: they run side by side (the serial parts of one, its
+        // calibration and its final fits, leave a core the other uses). The realigned one
+        // reports the progress.
+        let label = select::trace_label();
+        let (aligned, lagging) = std::thread::scope(|s| {
+            let lagging = s.spawn(|| {
+                select::set_trace_label(&label);
+                let quiet = |_: f64, _: &str| {};
+                self.run(
+                    unaligned,
+                    &Progress {
+                        report: &quiet,
+                        cancel: progress.cancel,
+                    },
+                )
+            });
+            let aligned = self.run(cal, progress);
+            (
+                aligned,
+                lagging
+                    .join()
+                    .unwrap_or_else(|e| std::panic::resume_unwind(e)),
+            )
+        });
+        let (aligned, j_aligned, cand_aligned) = aligned?;
+        let (lagging, j_lagging, cand_lagging) = lagging?;
         // A lag reading that names a command delay first has found the skew under another
         // name: it is the friction that the realignment would hide that it exists for (seed
         // 1111 case_011 skewed, a clean record: a one-sample delay and a viscous term beside

@@ -109,7 +109,7 @@ pub fn run(
             .filter(|e| !selected.iter().any(|(f, _)| f.effect == *e))
             .collect();
         let sig = Signals::new(eng, &base_eval);
-        let applied = in_base(&selected);
+        let applied = in_base(&selected, holds_growth(eng));
         let ratios = base_ratios(&selected, &ratios0);
         let ctx = Context {
             eng,
@@ -141,7 +141,7 @@ pub fn run(
         } else {
             base = f.cand.clone();
             base_eval = f.eval.clone();
-            take_refitted(&mut selected, &f.sel_theta);
+            take_refitted(&mut selected, &f.sel_theta, holds_growth(eng));
         }
         selected.push((f, s));
     }
@@ -363,7 +363,7 @@ fn take_better_refit(
     selected: &mut [(Fitted, Scores)],
 ) -> Option<(Cand, Eval)> {
     let f = candidates::best_without(eng, base_eval, round.iter().map(|(f, _)| f))?;
-    take_refitted(selected, &f.sel_theta);
+    take_refitted(selected, &f.sel_theta, holds_growth(eng));
     if let Some((last, _)) = selected.last_mut() {
         last.ratios.clone_from(&f.ratios);
     }
@@ -372,27 +372,43 @@ fn take_better_refit(
 
 /// The selected effects the base holds (those proven by their signature alone wait for the
 /// end, see [`proven_only`]).
-fn in_base(selected: &[(Fitted, Scores)]) -> Vec<Selected> {
+fn in_base(selected: &[(Fitted, Scores)], hold_growth: bool) -> Vec<Selected> {
     selected
         .iter()
         .filter(|(f, _)| !proven_only(f))
         .map(|(f, _)| Selected {
             applied: f.applied.clone(),
-            refit: f.refit,
+            refit: refit_beside(f, hold_growth),
         })
         .collect()
+}
+
+/// Whether a selected effect is fitted again beside each later candidate. A screw's growth
+/// is held (`hold_growth`) on a record longer than the solver's replays
+/// (`engine::MAX_LM_SAMPLES`): its time constant needs the whole fitting part, and fitted
+/// again there beside every later candidate it made most of a diagnosis's time (fresh seed
+/// 5151 case_067_skew at 60 s: two compliance fits beside it took 18 of its 31 s). It was
+/// fitted on the whole fitting part as a candidate, and the final joint fit refits it there.
+fn refit_beside(f: &Fitted, hold_growth: bool) -> bool {
+    f.refit && !(hold_growth && f.effect == Effect::ThermalGrowth)
+}
+
+/// Whether this record holds a selected growth in the later rounds (see [`refit_beside`]).
+fn holds_growth(eng: &Engine) -> bool {
+    eng.n_lm(false) < eng.split.n_fit
 }
 
 /// Gives the selected effects that were fitted again alongside the newest one their new
 /// parameters (`sel_theta`, in the order [`candidates::Context::selected_theta`] reads them:
 /// the selected effects in the base, re-fitted ones only).
-fn take_refitted(selected: &mut [(Fitted, Scores)], sel_theta: &[f64]) {
+fn take_refitted(selected: &mut [(Fitted, Scores)], sel_theta: &[f64], hold_growth: bool) {
     if sel_theta.is_empty() {
         return;
     }
     let mut at = 0;
     for (g, _) in selected.iter_mut().filter(|(g, _)| !proven_only(g)) {
-        if let (Some((_, th)), true) = (g.applied.fitted(), g.refit) {
+        let refit = refit_beside(g, hold_growth);
+        if let (Some((_, th)), true) = (g.applied.fitted(), refit) {
             let n = th.len();
             let Some(new) = sel_theta.get(at..at + n) else {
                 return;
@@ -699,6 +715,11 @@ thread_local! {
 /// Names the record this thread diagnoses next, for the `AXB_TRACE` debugging lines.
 pub fn set_trace_label(label: &str) {
     TRACE_LABEL.with(|l| *l.borrow_mut() = label.to_owned());
+}
+
+/// The label [`set_trace_label`] gave this thread (handed on to a thread it starts).
+pub fn trace_label() -> String {
+    TRACE_LABEL.with(|l| l.borrow().clone())
 }
 
 fn trace_round(k: usize, r: &[(Fitted, Scores)]) {

@@ -439,7 +439,7 @@ impl Context<'_, '_> {
         &self,
         effect: Effect,
         ev: Evidence,
-        make: &dyn Fn(&[f64]) -> Applied,
+        make: &(dyn Fn(&[f64]) -> Applied + Sync),
         patience: usize,
     ) -> Result<Option<Fitted>, DiagnoseError> {
         let defs = effect.params();
@@ -465,7 +465,7 @@ impl Context<'_, '_> {
         defs: &[crate::diagnose::effects::ParamDef],
         first: Vec<Vec<f64>>,
         ev: &Evidence,
-        make: &dyn Fn(&[f64]) -> Applied,
+        make: &(dyn Fn(&[f64]) -> Applied + Sync),
         note: &dyn Fn(&[f64]) -> String,
     ) -> Result<Option<Fitted>, DiagnoseError> {
         let fitted = self.fit_lm_defs(effect, defs, first, ev.clone(), make, LM_PATIENCE)?;
@@ -484,7 +484,7 @@ impl Context<'_, '_> {
         defs: &[crate::diagnose::effects::ParamDef],
         first: Vec<Vec<f64>>,
         ev: Evidence,
-        make: &dyn Fn(&[f64]) -> Applied,
+        make: &(dyn Fn(&[f64]) -> Applied + Sync),
         patience: usize,
     ) -> Result<Option<Fitted>, DiagnoseError> {
         let n_e = defs.len();
