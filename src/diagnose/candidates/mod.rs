@@ -642,7 +642,12 @@ impl Context<'_, '_> {
     ) -> Result<Option<(lm::LmFit, Vec<f64>)>, DiagnoseError> {
         let mut best: Option<lm::LmFit> = None;
         for start in starts {
-            let f = lm::fit(&start, params, rows, 0.03, patience)?;
+            // The first round's fits with whole Jacobians only (see `lm::SECANT_UPDATES`).
+            let f = if self.selected.is_empty() {
+                lm::fit(&start, params, rows, 0.03, patience)?
+            } else {
+                lm::fit_secant(&start, params, rows, 0.03, patience)?
+            };
             if best.as_ref().is_none_or(|b| f.cost < b.cost) {
                 best = Some(f);
             }
