@@ -2,7 +2,7 @@
 //! calibration and for every candidate. Parameters are scaled to order 1 and clamped to
 //! their bounds; the Jacobian is a forward difference of whole replays, or for the later
 //! rounds' candidates a secant update of the last one between two of those
-//! ([`SECANT_UPDATES`]).
+//! (`SECANT_UPDATES`).
 
 use std::cell::RefCell;
 
@@ -253,7 +253,7 @@ pub fn fit(
     fit_with(start, params, rows, step, patience, 0)
 }
 
-/// [`fit`] with [`SECANT_UPDATES`] between two whole Jacobians: for the candidates.
+/// [`fit`] with `SECANT_UPDATES` between two whole Jacobians: for the candidates.
 pub fn fit_secant(
     start: &[f64],
     params: &[Param],
