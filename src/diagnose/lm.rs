@@ -115,15 +115,18 @@ impl Problem<'_, '_> {
         }
     }
 
-    /// [`Problem::rows_at`], from the residuals the solver asked last when they were at `x`.
-    fn rows_cached(&self, x: &DVector<f64>) -> Option<DVector<f64>> {
-        let cached = self
-            .last_r
+    /// The residuals the solver asked for last, when they were at `x`.
+    fn last_rows_at(&self, x: &DVector<f64>) -> Option<DVector<f64>> {
+        self.last_r
             .borrow()
             .as_ref()
             .filter(|(xr, _)| xr == x)
-            .map(|(_, r)| r.clone());
-        cached.or_else(|| self.rows_at(x))
+            .map(|(_, r)| r.clone())
+    }
+
+    /// [`Problem::rows_at`], from the residuals the solver asked last when they were at `x`.
+    fn rows_cached(&self, x: &DVector<f64>) -> Option<DVector<f64>> {
+        self.last_rows_at(x).or_else(|| self.rows_at(x))
     }
 
     fn jac_at(&self, x: &DVector<f64>) -> Option<DMatrix<f64>> {
@@ -139,13 +142,7 @@ impl Problem<'_, '_> {
         {
             return Some(last.j.clone());
         }
-        let r_here = self
-            .last_r
-            .borrow()
-            .as_ref()
-            .filter(|(xr, _)| xr == x)
-            .map(|(_, r)| r.clone());
-        let updated = match (self.last_j.borrow().as_ref(), r_here) {
+        let updated = match (self.last_j.borrow().as_ref(), self.last_rows_at(x)) {
             (Some(last), Some(r)) if last.updates < secant => {
                 let dx = x - &last.x;
                 let dd = dx.norm_squared();
