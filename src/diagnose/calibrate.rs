@@ -196,6 +196,9 @@ pub struct ShiftRefit {
     pub j_first: f64,
     /// The same for the second.
     pub j_second: f64,
+    /// Whether the first reading stopped after its first effect (the shifts, fitted again
+    /// beside it, moved): `j_first` is then that one effect's model's.
+    pub first_stopped: bool,
 }
 
 /// Whether two readings of the channel shifts name a different skew: a different channel,
@@ -241,7 +244,12 @@ impl Calibration {
         let other = r.other.map_or("no skew".to_string(), |s| {
             format!("the {:?} channel {:+.2} samples off", s.channel, s.samples)
         });
-        Some(if r.kept_second {
+        Some(if r.first_stopped {
+            format!(
+                "the shifts were fitted again beside the first effect found; before, they read {other}, and that reading, stopped there, left {:.3} of the held-out part (the kept reading {:.3})",
+                r.j_first, r.j_second
+            )
+        } else if r.kept_second {
             format!(
                 "the shifts were fitted again with the effects found; before them they read {other}, which left {:.3} of the held-out part against {:.3}",
                 r.j_first, r.j_second

@@ -55,9 +55,9 @@ pub fn run(
     nominal: &Cand,
     calibrated: &Cand,
     cal_eval: &Eval,
-    effects: &[Effect],
-    max_effects: usize,
-) -> Result<Outcome, DiagnoseError> {
+    plan: Plan<'_>,
+) -> Result<Option<Outcome>, DiagnoseError> {
+    let (effects, max_effects) = (plan.effects, plan.max_effects);
     eng.sims_expected.store(
         40 * effects.len() * max_effects.max(1),
         std::sync::atomic::Ordering::Relaxed,
@@ -75,8 +75,7 @@ pub fn run(
         sig: &sig,
         play_found: false,
     };
-    let ranking = candidates::fit_all(&ctx, effects)?.ranked;
-    trace_round(0, &ranking);
+    let ranking = first_ranking(&ctx, effects, plan.first_round)?;
     let mut selected: Vec<(Fitted, Scores)> = Vec::new();
     let mut base = calibrated.clone();
     let mut base_eval = cal_eval.clone();
@@ -91,6 +90,12 @@ pub fn run(
             base_eval = f.eval.clone();
         }
         selected.push((f.clone(), *s));
+    }
+    if let Some(stop) = plan.after_first
+        && !selected.is_empty()
+        && stop(&ranking)?
+    {
+        return Ok(None);
     }
     let norm0 = (eng.sig_pos, eng.sig_force);
     while !selected.is_empty() && selected.len() < max_effects {
@@ -156,8 +161,41 @@ pub fn run(
         base_eval = eng.evaluate(&base)?;
     }
     let j = joint_refit(eng, cal, nominal, &selected, base, base_eval)?;
-    named(eng, nominal, selected, ranking, j)
+    named(eng, nominal, selected, ranking, j).map(Some)
 }
+
+/// The first round's ranking: every candidate fitted on the calibrated model, or `given`.
+fn first_ranking(
+    ctx: &Context,
+    effects: &[Effect],
+    given: Option<Vec<(Fitted, Scores)>>,
+) -> Result<Vec<(Fitted, Scores)>, DiagnoseError> {
+    let ranking = match given {
+        Some(r) => r,
+        None => candidates::fit_all(ctx, effects)?.ranked,
+    };
+    trace_round(0, &ranking);
+    Ok(ranking)
+}
+
+/// What [`run`] selects from, and how it starts.
+pub struct Plan<'a> {
+    /// The candidate effects.
+    pub effects: &'a [Effect],
+    /// At most this many are selected.
+    pub max_effects: usize,
+    /// Asked once the first round has picked an effect; true stops there.
+    pub after_first: Option<&'a AfterFirst<'a>>,
+    /// A first round this reading already ran (it stopped after it, see [`AfterFirst`]):
+    /// on the same record and calibration it comes out the same, so it is not fitted
+    /// again.
+    pub first_round: Option<Vec<(Fitted, Scores)>>,
+}
+
+/// Asked by [`run`] with the first round's ranking once it has picked an effect (the first
+/// of the ranking): true stops the selection there (the diagnosis reads the channel shifts
+/// again beside that effect, and a reading that moves them starts afresh).
+pub type AfterFirst<'a> = dyn Fn(&[(Fitted, Scores)]) -> Result<bool, DiagnoseError> + Sync + 'a;
 
 /// The outcome from the final joint fit `j`: the selected effects as they are named (see
 /// [`name_order`]).
@@ -685,6 +723,22 @@ fn by_what_each_adds(
             add_note(f);
         }
         add_note(&mut selected[i].0);
+    }
+}
+
+/// Development aid: one free line in the `AXB_TRACE` file, after this thread's label.
+pub fn trace_line(line: &str) {
+    let Some(path) = std::env::var_os("AXB_TRACE") else {
+        return;
+    };
+    let label = TRACE_LABEL.with(|l| l.borrow().clone());
+    use std::io::Write;
+    if let Ok(mut fh) = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path)
+    {
+        let _ = fh.write_all(format!("{label} {line}\n").as_bytes());
     }
 }
 

@@ -1132,12 +1132,14 @@ fn a_friction_read_as_a_skew_before_any_effect_is_no_skew_once_it_is_found() {
     // read the responses 0.72 samples ahead of the model, i.e. the command logged late,
     // and the record was realigned by it. Fitted again beside the friction found, the
     // shifts leave no skew; the effects selected again on the record as logged leave less
-    // of the held-out part, and that reading is kept.
+    // of the held-out part, and that reading is kept. The shifts are fitted again as soon
+    // as the first round has found the friction, and the first reading stops there.
     use axisbench::diagnose::calibrate::Channel;
     let r = named_single(2424, 14, "coulomb_friction");
     assert!(r.calibration.skew.is_none(), "{:?}", r.calibration.skew);
     let refit = r.calibration.refit.expect("fitted again");
-    assert!(refit.kept_second, "{refit:?}");
+    assert!(refit.kept_second && refit.first_stopped, "{refit:?}");
+    assert!(refit.j_second < refit.j_first, "{refit:?}");
     assert!(
         refit
             .other
