@@ -35,8 +35,11 @@ fn um(v: &[f64]) -> Vec<f64> {
 
 /// One ranking row: the parameters (the final ones, for a selected effect), their
 /// uncertainties, the scores and the evidence.
-fn rank_entry(f: &Fitted, s: &Scores, final_theta: Option<&[f64]>) -> RankEntry {
-    let theta = final_theta.unwrap_or(&f.theta);
+fn rank_entry(first: &Fitted, s: &Scores, selected: Option<(&Fitted, &[f64])>) -> RankEntry {
+    // A selected effect is described as it was selected, which may be a later round than
+    // the first, with another shape (level steps in the first round, bursts once a hunting
+    // play's tone was averaged out): its keys, evidence and note with its final parameters.
+    let (f, theta) = selected.unwrap_or((first, &first.theta));
     let mut params: BTreeMap<String, f64> = f
         .keys
         .iter()
@@ -116,11 +119,11 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
     let t: Vec<f64> = (0..hold_rec.len()).map(|i| hold_rec.t_s(i)).collect();
     let pos_mm: Vec<f64> = hold_rec.pos_m.iter().map(|x| m_to_mm(*x)).collect();
     let win_len = ((0.1 / hold_rec.t3_s).round() as usize).max(1);
-    let finals: BTreeMap<&str, &[f64]> = out
+    let finals: BTreeMap<&str, (&Fitted, &[f64])> = out
         .selected
         .iter()
         .zip(&out.final_params)
-        .map(|((f, _), th)| (f.effect.name(), th.as_slice()))
+        .map(|((f, _), th)| (f.effect.name(), (f, th.as_slice())))
         .collect();
     let ranking: Vec<RankEntry> = out
         .ranking
