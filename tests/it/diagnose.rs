@@ -555,6 +555,17 @@ fn named_single(seed: u64, i: usize, effect: &str) -> Report {
     r
 }
 
+/// Standard case `i` of `seed`, which must hide the two `effects`, diagnosed: its report,
+/// after checking that both are selected.
+fn named_pair(seed: u64, i: usize, effects: [&str; 2]) -> Report {
+    let (hidden, r) = standard_case(seed, i);
+    assert_eq!(hidden, effects, "seed {seed} case {i}");
+    for e in &hidden {
+        assert!(r.selected.contains(e), "{e} not in {:?}", r.selected);
+    }
+    r
+}
+
 /// The calibration's ratio of the parameter named `name` in `r`.
 fn cal_ratio(r: &Report, name: &str) -> f64 {
     r.calibration
@@ -686,11 +697,7 @@ fn a_friction_beside_a_hunting_play_is_found_through_the_tone() {
     // force residual above 50 Hz); the friction's held-out shrink was 2.7 % under the tone,
     // and only the play was named. Scored through a 20 ms moving average once the tone has
     // proven the play, the friction takes a quarter of the residual away.
-    let (hidden, r) = standard_case(909, 67);
-    assert_eq!(hidden, ["viscous_friction", "backlash"]);
-    for e in &hidden {
-        assert!(r.selected.contains(e), "{e} not in {:?}", r.selected);
-    }
+    named_pair(909, 67, ["viscous_friction", "backlash"]);
     // Its size is not right yet, so it is not asserted: fitted on the model without the
     // play (a modelled play adds a tone of its own), the friction reads 72 N·s/m where the
     // record's speed term is 517 and the hidden one 330.
@@ -715,16 +722,8 @@ fn bursts_beside_a_hunting_play_are_found_through_the_tone() {
     // level steps were read instead (held-out shrink −13 %); through the 20 ms moving
     // average that scores the rounds after the tone proved the play, four bursts are found
     // and take half of the held-out residual.
-    let (hidden, r) = standard_case(4949, 70);
-    assert_eq!(hidden, ["external_disturbance", "backlash"]);
-    for e in &hidden {
-        assert!(r.selected.contains(e), "{e} not in {:?}", r.selected);
-    }
-    let d = r
-        .ranking
-        .iter()
-        .find(|e| e.effect == "external_disturbance")
-        .expect("ranked");
+    let r = named_pair(4949, 70, ["external_disturbance", "backlash"]);
+    let d = ranked(&r, "external_disturbance");
     // Reported as it was selected (the first round read steps).
     assert!(
         d.params.contains_key("windows") && d.evidence.contains("bursts"),
@@ -742,17 +741,8 @@ fn a_growth_beside_a_friction_is_found_as_the_friction_s_base() {
     // worse (the drift bent the calibration), and the growth took 19 % of the fitting part
     // and nothing held out. With the growth as the base, the friction takes 88 % of the
     // held-out residual.
-    let (hidden, r) = standard_case(5151, 73);
-    assert_eq!(hidden, ["coulomb_friction", "thermal_growth"]);
-    for e in &hidden {
-        assert!(r.selected.contains(e), "{e} not in {:?}", r.selected);
-    }
-    let fc = r
-        .ranking
-        .iter()
-        .find(|e| e.effect == "coulomb_friction")
-        .map(|e| e.params["force_n"])
-        .expect("ranked");
+    let r = named_pair(5151, 73, ["coulomb_friction", "thermal_growth"]);
+    let fc = ranked(&r, "coulomb_friction").params["force_n"];
     assert!((fc - 25.9).abs() < 0.1 * 25.9, "Fc {fc} N, hidden 25.9 N");
     assert!(r.shrink > 0.5, "overall held-out shrink {}", r.shrink);
 }
@@ -946,11 +936,7 @@ fn a_viscous_term_beyond_the_calibrations_range_is_found_beside_quantization() {
     // ×0.967, not at its bound, so the speed term (−95 N·s/m, 50 standard errors) was read
     // as "within what the calibration covers". More than the calibration's whole range is
     // not a correction.
-    let (hidden, r) = standard_case(1010, 73);
-    assert_eq!(hidden, ["viscous_friction", "quantization"]);
-    for h in &hidden {
-        assert!(r.selected.contains(h), "{h} not in {:?}", r.selected);
-    }
+    named_pair(1010, 73, ["viscous_friction", "quantization"]);
 }
 
 #[test]
