@@ -758,6 +758,52 @@ fn a_stroke_friction_worn_by_distance_is_named() {
 }
 
 #[test]
+fn a_stroke_friction_ahead_of_coulomb_on_both_parts_is_named() {
+    // Single-effect record 25 of the independent seed 4848: a film that breaks down over
+    // 7 mm run in short strokes, 18.2 N at most. Its regression stood 2.5 standard errors
+    // clear (short of the signature's 6 and of the weak bar's 3), so the Coulomb friction,
+    // 58 % held out, was named; the stroke friction's replay took 73 % held out and 85 % of
+    // the fitting part against the Coulomb friction's 55 %. The stroke friction holds the
+    // Coulomb friction, and its lead on both parts is the rise it adds
+    // (STROKE_OVER_COULOMB).
+    let r = named_single(4848, 25, "stroke_friction");
+    let s = ranked(&r, "stroke_friction");
+    assert!(
+        s.note.contains("lead over a Coulomb friction"),
+        "{}",
+        s.note
+    );
+    let rise = s.params["rise_n"];
+    assert!(
+        (0.5 * 18.2..=1.5 * 18.2).contains(&rise),
+        "rise {rise} N, hidden at most 18.2 N: {:?}",
+        s.params
+    );
+}
+
+#[test]
+fn a_pitch_table_whose_error_lies_beyond_the_fitted_travel_is_named() {
+    // Single-effect record 49 of the independent seed 4949: a pitch table of 17 knots every
+    // 22.6 mm (±1.1 µm). The fitting part ran over 17–77 mm, where the table's error is
+    // 0.135 µm rms; the held-out part over 32–130 mm, 79 % of its samples within the fitted
+    // travel, but the 21 % beyond it carry 0.92 µm rms, most of the held-out position
+    // residual. A table claims nothing beyond its travel, so it took 5 % held out and the
+    // record was named `none`, although a table fitted on the first half of the fitting
+    // part explained 96 % of the second half. The held-out part beyond the travel is now
+    // also weighed by its residual (HOLDOUT_IN_TRAVEL).
+    let r = named_single(4949, 49, "lead_error");
+    let l = ranked(&r, "lead_error");
+    let energy_in = l.evidence_figures["holdout_energy_in_travel_share"];
+    assert!(energy_in < 0.5, "{energy_in}: {}", l.evidence);
+    assert_eq!(
+        l.evidence_figures.get("halves_hold"),
+        Some(&1.0),
+        "{}",
+        l.evidence
+    );
+}
+
+#[test]
 fn a_compliance_without_ringing_is_found_with_its_calibration() {
     // Single-effect record 42 of the independent seed 808: a 19 kg payload on a spring at
     // 55 Hz. The calibration without it took kp ×1.05 and kv ×0.95, leaving a 3 µm
