@@ -392,23 +392,25 @@ impl<'a> Engine<'a> {
         let main = self.split.main;
         let n = s.pos_m.len();
         let st = Engine::stride_of(n);
-        let mut v = Vec::with_capacity(2 * n / st + 2);
+        let per_channel = n.div_ceil(st);
+        let channels = if main.force_n.is_some() { 2 } else { 1 };
+        let root = ((channels * per_channel) as f64).sqrt();
+        let mut v = Vec::with_capacity(channels * per_channel);
         // Unshifted (every iteration of every fit), a sample is read as it is: `at` at a
         // whole index returns it, and skipping its interpolation is a tenth of a diagnosis.
         let push = |v: &mut Vec<f64>, rec: &[f64], sim: &[f64], shift: f64, sig: f64| {
             let rows = (0..sim.len()).step_by(st);
             if shift == 0.0 {
-                v.extend(rows.map(|k| (rec[k] - sim[k]) / sig));
+                v.extend(rows.map(|k| (rec[k] - sim[k]) / sig / root));
             } else {
-                v.extend(rows.map(|k| (rec[k] - at(sim, k as f64 + shift)) / sig));
+                v.extend(rows.map(|k| (rec[k] - at(sim, k as f64 + shift)) / sig / root));
             }
         };
         push(&mut v, &main.pos_m, &s.pos_m, pos_shift, self.sig_pos);
         if let Some(f) = &main.force_n {
             push(&mut v, f, &s.force_n, force_shift, self.sig_force);
         }
-        let len = v.len() as f64;
-        DVector::from_vec(v) / len.sqrt()
+        DVector::from_vec(v)
     }
 
     /// How candidate `after` changes the held-out residual of `base`. `mask` leaves out the
