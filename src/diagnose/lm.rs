@@ -2,8 +2,7 @@
 //! calibration and for every candidate. Parameters are scaled to order 1 and clamped to
 //! their bounds; the Jacobian is a forward difference of whole replays, or for the later
 //! rounds' candidates a secant update of the last one between two of those
-//! (`SECANT_UPDATES`). The solver is handed the rows and the Jacobian compressed to n + 1
-//! rows in a basis that keeps its steps (`compressed_jacobian`).
+//! (`SECANT_UPDATES`).
 
 use std::cell::RefCell;
 
@@ -56,9 +55,6 @@ struct Problem<'r, 'a> {
     /// quarter of a three-parameter fit's replays).
     last_r: RefCell<Option<(DVector<f64>, DVector<f64>)>>,
     err: RefCell<Option<DiagnoseError>>,
-    /// Whether the solver gets the rows and Jacobian compressed (see
-    /// [`compressed_jacobian`]); off only in the test that compares the two.
-    compress: bool,
 }
 
 /// The last Jacobian the solver was given.
@@ -227,53 +223,13 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
 
     fn residuals(&self) -> Option<DVector<f64>> {
         let r = self.rows_at(&self.x)?;
-        let norm = r.norm();
-        let n = self.x.len();
-        let out = if self.compress && compresses(r.len(), n) {
-            let mut v = DVector::zeros(n + 1);
-            v[0] = norm;
-            v
-        } else {
-            r.clone()
-        };
-        *self.last_r.borrow_mut() = Some((self.x.clone(), r));
-        Some(out)
+        *self.last_r.borrow_mut() = Some((self.x.clone(), r.clone()));
+        Some(r)
     }
 
     fn jacobian(&self) -> Option<DMatrix<f64>> {
-        if !self.compress {
-            return self.jac_at(&self.x);
-        }
-        self.jac_to(&self.x, self.secant)?;
-        let last = self.last_j.borrow();
-        let last = last.as_ref()?;
-        let (m, n) = last.j.shape();
-        if !compresses(m, n) {
-            return Some(last.j.clone());
-        }
-        // The rows the Jacobian was taken at are the rows at `x`.
-        Some(compressed_jacobian(&last.rows, &last.j))
+        self.jac_at(&self.x)
     }
-}
-
-/// Whether a problem of `m` rows and `n` parameters is handed to the solver compressed (see
-/// [`compressed_jacobian`]).
-fn compresses(m: usize, n: usize) -> bool {
-    m > n + 1
-}
-
-/// The Jacobian `j` at rows `r` in an orthonormal basis of the span of `r` and `j`'s
-/// columns whose first vector is `r`'s direction: n + 1 rows instead of m, in which the rows
-/// themselves are (|r|, 0, …, 0). The solver's step depends only on JᵀJ, Jᵀr, |r| and the
-/// columns' norms, which the basis keeps, so it takes the same steps as on the whole rows
-/// (to rounding); its own QR, a third of a diagnosis on the whole rows (a scalar loop),
-/// then works on an (n + 1) × n matrix.
-fn compressed_jacobian(r: &DVector<f64>, j: &DMatrix<f64>) -> DMatrix<f64> {
-    let (m, n) = j.shape();
-    let a = DMatrix::from_iterator(m, n + 1, r.iter().chain(j.iter()).copied());
-    // nalgebra's R has a non-negative diagonal: the basis' first vector points along r
-    // (the test below tries both signs).
-    a.qr().r().columns(1, n).into_owned()
 }
 
 /// Secant (Broyden) updates of a candidate's Jacobian between two whole ones. A whole
@@ -321,19 +277,6 @@ fn fit_with(
     patience: usize,
     secant: usize,
 ) -> Result<LmFit, DiagnoseError> {
-    fit_as(start, params, rows, (step, patience, secant), true)
-}
-
-/// [`fit_with`] (`how`: step, patience, secant updates), the solver given the rows whole
-/// when not `compress`.
-fn fit_as(
-    start: &[f64],
-    params: &[Param],
-    rows: &Rows<'_>,
-    how: (f64, usize, usize),
-    compress: bool,
-) -> Result<LmFit, DiagnoseError> {
-    let (step, patience, secant) = how;
     let problem = Problem {
         params,
         rows,
@@ -346,7 +289,6 @@ fn fit_as(
         secant,
         last_r: RefCell::new(None),
         err: RefCell::new(None),
-        compress,
     };
     let solve = |problem| {
         LevenbergMarquardt::new()
@@ -437,9 +379,9 @@ pub fn std_devs(f: &LmFit, n_eff_per_row: f64) -> Vec<f64> {
 mod tests {
     use std::sync::Mutex;
 
-    use nalgebra::{DMatrix, DVector};
+    use nalgebra::DVector;
 
-    use super::{Param, fit, fit_as, fit_with};
+    use super::{Param, fit, fit_with};
 
     /// A straight line through noise-free points: the solver must find its slope and offset,
     /// and it must never replay the same parameters twice (the Jacobian's base column is the
@@ -477,75 +419,6 @@ mod tests {
         calls.sort_by(|a, b| a.partial_cmp(b).expect("finite"));
         calls.dedup();
         assert_eq!(calls.len(), n, "a point replayed twice");
-    }
-
-    /// A decay beside a sine in noise, five parameters and 200 rows: the solver given the
-    /// rows compressed to six takes the same steps as given them whole (the same replays,
-    /// the same optimum to 1e-9).
-    #[test]
-    fn compressed_rows_take_the_same_steps_as_whole_rows() {
-        let ts: Vec<f64> = (0..200).map(|i| f64::from(i) * 0.02).collect();
-        let model =
-            |th: &[f64], t: f64| th[0] * (-th[1] * t).exp() + th[2] + th[3] * (th[4] * t).sin();
-        let truth = [2.0, 1.7, -0.4, 0.3, 2.0];
-        let noise = |i: usize| 0.01 * ((i * 7919 % 101) as f64 / 101.0 - 0.5);
-        let calls = Mutex::new(0usize);
-        let rows = |th: &[f64]| {
-            *calls.lock().expect("lock") += 1;
-            Ok(Some(DVector::from_iterator(
-                ts.len(),
-                ts.iter()
-                    .enumerate()
-                    .map(|(i, &t)| model(&truth, t) - model(th, t) + noise(i)),
-            )))
-        };
-        let p = |lo: f64, hi: f64| Param { lo, hi, scale: 1.0 };
-        let params = [
-            p(0.0, 10.0),
-            p(0.01, 10.0),
-            p(-5.0, 5.0),
-            p(-5.0, 5.0),
-            p(0.1, 10.0),
-        ];
-        let start = [1.2, 1.0, -0.1, 0.1, 1.8];
-        let mut fits = vec![];
-        for compress in [false, true] {
-            *calls.lock().expect("lock") = 0;
-            let f = fit_as(&start, &params, &rows, (0.03, 50, 3), compress).expect("fit");
-            fits.push((f, *calls.lock().expect("lock")));
-        }
-        let ((whole, n_whole), (packed, n_packed)) = (&fits[0], &fits[1]);
-        assert_eq!(n_whole, n_packed, "replays whole and compressed");
-        for (a, b) in whole.theta.iter().zip(&packed.theta) {
-            assert!(
-                (a - b).abs() < 1e-9,
-                "{:?} vs {:?}",
-                whole.theta,
-                packed.theta
-            );
-        }
-        for (got, want) in packed.theta.iter().zip(truth) {
-            assert!((got - want).abs() < 0.02, "{:?}", packed.theta);
-        }
-    }
-
-    /// The compressed Jacobian keeps JᵀJ and Jᵀr with the rows as (|r|, 0, …, 0), whichever
-    /// way r and the columns point.
-    #[test]
-    fn the_compressed_jacobian_keeps_the_normal_equations() {
-        for sign in [1.0, -1.0] {
-            let m = 40;
-            let r = DVector::from_fn(m, |i, _| sign * (1.0 + (i as f64 * 0.37).sin()));
-            let j = DMatrix::from_fn(m, 3, |i, k| ((i * (k + 2)) as f64 * 0.11).cos() - 0.2);
-            let jc = super::compressed_jacobian(&r, &j);
-            assert_eq!(jc.shape(), (4, 3));
-            let mut rc = DVector::zeros(4);
-            rc[0] = r.norm();
-            let (jtj, jtj_c) = (j.tr_mul(&j), jc.tr_mul(&jc));
-            let (jtr, jtr_c) = (j.tr_mul(&r), jc.tr_mul(&rc));
-            assert!((jtj - jtj_c).abs().max() < 1e-9, "JᵀJ, r sign {sign}");
-            assert!((jtr - jtr_c).abs().max() < 1e-9, "Jᵀr, r sign {sign}");
-        }
     }
 
     /// A decay y = a·e^(−b·t) + c: with secant updates between whole Jacobians the solver
