@@ -1515,6 +1515,25 @@ fn a_pitch_table_whose_held_out_part_lies_beyond_its_travel_is_judged_on_its_hal
 }
 
 #[test]
+fn a_straight_pitch_table_beyond_the_held_out_travel_is_judged_without_the_line() {
+    // Single-effect record 49 of the independent seed 5858: a pitch table of knots. 86 % of
+    // the held-out part lies beyond the travel the fitting part covers, so the table is
+    // judged on the halves of the fitting part. Within the first half's travel the table
+    // was nearly straight: fitted on the first half it explained 99 % of the second, but a
+    // straight line did as well, and "no better than a line" kept it out (the verdict was
+    // none). The line test tells a screw's growth from a pitch error; this residual does not
+    // drift in time, and a straight error along the travel that stays put is a lead error.
+    let r = named_single(5858, 49, "lead_error");
+    let e = ranked(&r, "lead_error");
+    assert_eq!(e.evidence_figures.get("halves_hold"), Some(&1.0), "{e:#?}");
+    assert!(
+        e.shrink_pos > 0.05,
+        "held-out position shrink {}",
+        e.shrink_pos
+    );
+}
+
+#[test]
 fn a_sharp_fine_pitch_beside_a_friction_the_model_lacks_is_named() {
     // Two-effect record 64 of the independent seed 2323 (scale): a lead error of 0.33 µm
     // at a 2.59 mm pitch beside a power-law viscous friction. The linear viscous term found
