@@ -85,6 +85,14 @@ pub struct BenchFigure {
     pub axis_steps_per_s: f64,
 }
 
+/// Steps a recorded run of `m` can take before its trace reaches
+/// [`crate::machine::MAX_TRACE_BYTES`].
+fn max_recorded_steps(m: &Machine) -> u64 {
+    let row_bytes = m.trace.signals.len().max(1) * std::mem::size_of::<f64>();
+    let rows = (crate::machine::MAX_TRACE_BYTES / row_bytes).saturating_sub(m.trace.len() + 1);
+    u64::try_from(rows).unwrap_or(u64::MAX).max(1)
+}
+
 /// Runs the full model for `axis_steps` axis-steps, best of three.
 pub fn run(n_axes: usize, axis_steps: u64, recording: bool) -> Result<BenchFigure, MachineError> {
     run_preset(&full_model_preset(n_axes)?, axis_steps, recording)
@@ -99,11 +107,16 @@ pub fn run_preset(
 ) -> Result<BenchFigure, MachineError> {
     let n_axes = p.axes.len().max(1);
     let prog = bench_program(n_axes);
-    let steps = (axis_steps / n_axes as u64).max(1);
+    let mut steps = (axis_steps / n_axes as u64).max(1);
     let mut best = f64::INFINITY;
     for _ in 0..3 {
         let mut m = Machine::new(p, &[("bench.ngc".into(), prog.clone())])?;
         m.set_recording(recording);
+        if recording {
+            // A recorded run stops at the trace's memory limit; the figure says how many
+            // steps it timed.
+            steps = steps.min(max_recorded_steps(&m));
+        }
         let t0 = Instant::now();
         m.run_steps(steps)?;
         let dt = t0.elapsed().as_secs_f64();

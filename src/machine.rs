@@ -159,9 +159,13 @@ impl AxisRt {
 /// Rows the recorder stages before it writes them to the trace's columns.
 const STAGE_ROWS: usize = 128;
 
+/// Values of one cache line: the most rows a flush holds back.
+const LINE_F64: usize = crate::trace::LINE_BYTES / std::mem::size_of::<f64>();
+
 struct Recorder {
     every: u32,
-    /// Rows the stage holds: [`STAGE_ROWS`], or one T2 period if that is longer.
+    /// Rows the stage holds: [`STAGE_ROWS`], or one T2 period and a line's worth if that is
+    /// longer.
     cap: usize,
     /// Columns of the trace (row length).
     ncols: usize,
@@ -541,7 +545,8 @@ impl Machine {
             })
             .collect();
         let ncols = tr.signals.len();
-        let cap = STAGE_ROWS.max(self.n23 as usize);
+        // Room for one T2 period beside the rows a flush holds back (see `flush_rows`).
+        let cap = STAGE_ROWS.max(self.n23 as usize + LINE_F64);
         self.rec = Some(Recorder {
             every: self.preset.scenario.trace_every.max(1),
             cap,
@@ -588,7 +593,7 @@ impl Machine {
         self.bulk = true;
         let r = self.run_staged(max_s);
         self.bulk = false;
-        self.flush_rows();
+        self.flush_rows(true);
         r
     }
 
@@ -611,7 +616,7 @@ impl Machine {
         self.bulk = true;
         let r = self.run_steps_staged(n);
         self.bulk = false;
-        self.flush_rows();
+        self.flush_rows(true);
         r
     }
 
@@ -683,7 +688,7 @@ impl Machine {
         if let Some(rec) = &self.rec
             && rec.staged + n23 > rec.cap
         {
-            self.flush_rows();
+            self.flush_rows(false);
         }
         let t3 = self.t3_s;
         for (i, a) in self.axes.iter_mut().enumerate() {
@@ -702,13 +707,18 @@ impl Machine {
                     let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);
                     let stage = &mut rec.stage;
                     let mut r = first;
+                    // Periods to skip before the next recorded one (k ≡ 0 mod `every`),
+                    // counted down instead of a division per period.
+                    let mut skip = (every - k0 % every) % every;
                     a.axis_loop.run(
                         &block,
                         #[inline(always)]
-                        |j, l| {
-                            if !(k0 + j as u64).is_multiple_of(every) {
+                        |_, l| {
+                            if skip > 0 {
+                                skip -= 1;
                                 return;
                             }
+                            skip = every - 1;
                             let s = l.sample();
                             let fpt = l.force_per_torque();
                             let vals = recorded_row(s, s.plant.pos_m + sag, fpt);
@@ -744,8 +754,9 @@ impl Machine {
             .first()
             .map_or(20.0, |a| a.axis_loop.plant().thermal().ambient_c);
         let cap = rec.cap;
-        for (row, k) in (k0..k0 + len as u64)
-            .filter(|k| k.is_multiple_of(every))
+        let step = usize::try_from(every).unwrap_or(usize::MAX);
+        for (row, k) in (k0.next_multiple_of(every)..k0 + len as u64)
+            .step_by(step)
             .enumerate()
         {
             // The position-stage compensations step only at the T2 tick, so their values
@@ -1030,18 +1041,34 @@ impl Machine {
         }
         rec.staged += 1;
         if !self.bulk || rec.staged == rec.cap {
-            self.flush_rows();
+            let whole = !self.bulk;
+            self.flush_rows(whole);
         }
     }
 
     /// Appends the staged rows to the trace's columns, one column at a time: a long run
     /// then writes each column in bursts instead of touching every column every row (the
     /// writes per row went to 21 places in memory, and recording cost three times the model).
-    fn flush_rows(&mut self) {
+    ///
+    /// Inside a run (`whole` false) the rows that would end a column inside a cache line
+    /// wait in the stage for the next flush (at most seven), so that every flush writes
+    /// whole lines: a line the streaming stores fill only in part is first read from memory.
+    fn flush_rows(&mut self, whole: bool) {
         let Some(rec) = &mut self.rec else { return };
-        let (n, cap, rows) = (rec.ncols, rec.cap, rec.staged);
+        let (n, cap, staged) = (rec.ncols, rec.cap, rec.staged);
+        let rows = if whole {
+            staged
+        } else {
+            self.trace.line_aligned_rows(staged)
+        };
         self.trace.append_staged(&rec.stage[..n * cap], cap, rows);
-        rec.staged = 0;
+        if rows < staged {
+            for c in 0..n {
+                rec.stage
+                    .copy_within(c * cap + rows..c * cap + staged, c * cap);
+            }
+        }
+        rec.staged = staged - rows;
     }
 }
 

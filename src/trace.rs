@@ -377,6 +377,24 @@ impl Trace {
         }
     }
 
+    /// How many of `rows` rows to append now so that the columns end on a cache line
+    /// boundary (judged on the first column; the columns are reserved together, so they
+    /// share its alignment), or `rows` when there is no room reserved or no such count.
+    pub fn line_aligned_rows(&self, rows: usize) -> usize {
+        let Some(col) = self.signals.first() else {
+            return rows;
+        };
+        if col.data.capacity() - col.data.len() < rows {
+            return rows;
+        }
+        let end = col.data.as_ptr() as usize + std::mem::size_of_val(col.data.as_slice());
+        let over = (end + rows * std::mem::size_of::<f64>()) % LINE_BYTES;
+        if !over.is_multiple_of(std::mem::size_of::<f64>()) {
+            return rows;
+        }
+        rows.saturating_sub(over / std::mem::size_of::<f64>())
+    }
+
     /// Drops all samples, keeping the columns (live plots reuse the buffer).
     pub fn clear(&mut self) {
         for s in &mut self.signals {
@@ -384,6 +402,9 @@ impl Trace {
         }
     }
 }
+
+/// Size of a cache line on the machines we run on (x86-64, aarch64).
+pub const LINE_BYTES: usize = 64;
 
 /// Size of a transparent huge page on x86-64 and aarch64 Linux.
 #[cfg(target_os = "linux")]
@@ -513,27 +534,32 @@ fn populate(_start: usize, _len: usize) {}
 fn extend_streaming(v: &mut Vec<f64>, src: &[f64]) {
     #[cfg(target_arch = "x86_64")]
     if v.capacity() - v.len() >= src.len() {
-        use std::arch::x86_64::{_mm_loadu_pd, _mm_stream_pd};
         let spare = &mut v.spare_capacity_mut()[..src.len()];
-        let mut i = 0;
-        // `_mm_stream_pd` wants a 16-byte aligned target; an 8-byte aligned column
-        // starts with one plain store.
-        if !(spare.as_ptr() as usize).is_multiple_of(16)
-            && let (Some(d), Some(&x)) = (spare.first_mut(), src.first())
-        {
-            d.write(x);
-            i = 1;
-        }
         let dst = spare.as_mut_ptr().cast::<f64>();
-        while i + 2 <= src.len() {
-            // SAFETY: `i + 1 < src.len() == spare.len()`, so both the load from `src` and
-            // the 16-byte store into the spare capacity stay in bounds; `dst + i` is
-            // 16-byte aligned (checked above, and `i` moves by two f64).
-            unsafe { _mm_stream_pd(dst.add(i), _mm_loadu_pd(src.as_ptr().add(i))) };
-            i += 2;
+        // Plain stores up to the first address the wide streaming store accepts.
+        let head = (dst as usize)
+            .next_multiple_of(STREAM_BYTES)
+            .saturating_sub(dst as usize)
+            / std::mem::size_of::<f64>();
+        let mut i = 0;
+        while i < head.min(src.len()) {
+            if let (Some(d), Some(&x)) = (spare.get_mut(i), src.get(i)) {
+                d.write(x);
+            }
+            i += 1;
         }
-        if let (Some(d), Some(&x)) = (spare.get_mut(i), src.get(i)) {
-            d.write(x);
+        while i + STREAM_LANES <= src.len() {
+            // SAFETY: `i + STREAM_LANES <= src.len() == spare.len()`, so the load from `src`
+            // and the store into the spare capacity stay in bounds; `dst + i` is aligned to
+            // `STREAM_BYTES` (the head above, then `i` moves by whole vectors).
+            unsafe { stream_lanes(dst.add(i), src.as_ptr().add(i)) };
+            i += STREAM_LANES;
+        }
+        while i < src.len() {
+            if let (Some(d), Some(&x)) = (spare.get_mut(i), src.get(i)) {
+                d.write(x);
+            }
+            i += 1;
         }
         let len = v.len() + src.len();
         // SAFETY: every element of the first `src.len()` spare slots was written above.
@@ -541,4 +567,51 @@ fn extend_streaming(v: &mut Vec<f64>, src: &[f64]) {
         return;
     }
     v.extend_from_slice(src);
+}
+
+/// Bytes of one streaming store: a whole cache line where the CPU has AVX-512, so that the
+/// line goes to memory in one piece.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx512f"))]
+const STREAM_BYTES: usize = 64;
+#[cfg(all(
+    target_arch = "x86_64",
+    not(target_feature = "avx512f"),
+    target_feature = "avx"
+))]
+const STREAM_BYTES: usize = 32;
+#[cfg(all(
+    target_arch = "x86_64",
+    not(target_feature = "avx512f"),
+    not(target_feature = "avx")
+))]
+const STREAM_BYTES: usize = 16;
+#[cfg(target_arch = "x86_64")]
+const STREAM_LANES: usize = STREAM_BYTES / std::mem::size_of::<f64>();
+
+/// One non-temporal store of `STREAM_LANES` values from `src` to `dst`.
+///
+/// # Safety
+/// `src` must be readable and `dst` writable for `STREAM_LANES` f64, and `dst` aligned to
+/// `STREAM_BYTES`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn stream_lanes(dst: *mut f64, src: *const f64) {
+    #[cfg(target_feature = "avx512f")]
+    // SAFETY: as the caller promises; the CPU has AVX-512 (compile-time feature).
+    unsafe {
+        use std::arch::x86_64::{_mm512_loadu_pd, _mm512_stream_pd};
+        _mm512_stream_pd(dst, _mm512_loadu_pd(src));
+    }
+    #[cfg(all(not(target_feature = "avx512f"), target_feature = "avx"))]
+    // SAFETY: as the caller promises; the CPU has AVX (compile-time feature).
+    unsafe {
+        use std::arch::x86_64::{_mm256_loadu_pd, _mm256_stream_pd};
+        _mm256_stream_pd(dst, _mm256_loadu_pd(src));
+    }
+    #[cfg(all(not(target_feature = "avx512f"), not(target_feature = "avx")))]
+    // SAFETY: as the caller promises; SSE2 is part of x86-64.
+    unsafe {
+        use std::arch::x86_64::{_mm_loadu_pd, _mm_stream_pd};
+        _mm_stream_pd(dst, _mm_loadu_pd(src));
+    }
 }

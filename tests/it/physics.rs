@@ -696,6 +696,25 @@ fn a_staged_run_records_the_trace_that_single_steps_record() {
     assert_same_trace(&a.trace, &b.trace, "default.ron");
 }
 
+/// `Machine::run_steps` reserves the trace's room, so its flushes hold back the rows that
+/// would end a column inside a cache line and carry them to the next flush. The trace still
+/// comes out as single steps record it, bit for bit, and whole.
+#[test]
+fn a_run_that_holds_rows_back_for_whole_lines_records_what_single_steps_record() {
+    let lp = axisbench::preset::load_embedded("default.ron").expect("default preset");
+    let mut a = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+    let mut b = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+    a.set_recording(true);
+    b.set_recording(true);
+    let rows0 = a.trace.len();
+    a.run_steps(30_001).expect("run");
+    while b.k < a.k {
+        b.step();
+    }
+    assert_eq!(a.trace.len(), rows0 + 30_001);
+    assert_same_trace(&a.trace, &b.trace, "default.ron, run_steps");
+}
+
 /// Same columns, same rows, every value the same to the bit.
 fn assert_same_trace(a: &axisbench::trace::Trace, b: &axisbench::trace::Trace, what: &str) {
     assert_eq!(a.signals.len(), b.signals.len(), "{what}");

@@ -511,6 +511,16 @@ fn staged_rows_append_exactly_at_any_alignment() {
         (1, 4, true),
         (3, 1, true),
         (2, 7, false),
+        // Long enough for whole-line (up to 64-byte) streaming stores between a head and a
+        // tail at every start within a line.
+        (0, 64, true),
+        (1, 63, true),
+        (2, 40, true),
+        (3, 37, true),
+        (5, 17, true),
+        (6, 24, true),
+        (7, 33, true),
+        (9, 50, false),
     ] {
         let mut t = Trace::new();
         t.add_signal("a", "m");
@@ -523,7 +533,7 @@ fn staged_rows_append_exactly_at_any_alignment() {
         if reserve {
             t.reserve_rows(rows);
         }
-        let stride = 8;
+        let stride = 64;
         let n = t.signals.len();
         let stage: Vec<f64> = (0..n * stride).map(|i| i as f64 + 0.5).collect();
         t.append_staged(&stage, stride, rows);
@@ -535,4 +545,29 @@ fn staged_rows_append_exactly_at_any_alignment() {
             assert_eq!(s.data, want, "pre {pre}, rows {rows}, reserved {reserve}");
         }
     }
+}
+
+/// A flush inside a run appends only the rows that end the columns on a cache line, so that
+/// no line is written in part: at most a line's worth (eight values) waits, and the end
+/// lands on a 64-byte boundary at every start within a line.
+#[test]
+fn a_flush_inside_a_run_ends_the_columns_on_a_cache_line() {
+    for pre in 0..12 {
+        let mut t = Trace::new();
+        t.add_signal("a", "m");
+        t.reserve_rows(10_000);
+        for s in &mut t.signals {
+            s.data.extend((0..pre).map(f64::from));
+        }
+        for rows in [8, 9, 128, 133] {
+            let n = t.line_aligned_rows(rows);
+            let col = &t.signals[0].data;
+            let end = col.as_ptr() as usize + 8 * (col.len() + n);
+            assert_eq!(end % 64, 0, "pre {pre}, rows {rows}: {n} rows end mid-line");
+            assert!(n + 8 > rows && n <= rows, "pre {pre}, rows {rows}: {n}");
+        }
+    }
+    // Without reserved room nothing is held back (the column may move when it grows).
+    let t = Trace::new();
+    assert_eq!(t.line_aligned_rows(5), 5);
 }

@@ -240,7 +240,7 @@ def kernel(raw, cmd, n23, c, record, out):
             v, fr = friction_step(t_hm, t_mh, t_vi, t_kin, coul, visc, v_t, 0.0)
             x_t = (x_t + hh * v_t) + hh * v
             v_t = v
-            gap = x_m - x_t
+            gap = x_m - x_t + 0.5 * h * (v_m - v_t)       # the gap at mid-sub-step
             side = 1 if gap >= b2 else (-1 if gap <= -b2 else 0)
             if side != 0:
                 v = (m_m * v_m + m_t * v_t) / (m_m + m_t)
