@@ -8,8 +8,8 @@ What it is
               the raw interpolated command, velocity PI loop (kv, ki, conditional integration),
               acceleration feed-forward (aff * M, one acceleration per T2 segment of the raw
               command: SegmentAcc), torque limit, current loop as a first-order lag;
-      plant : rigid drive with lost motion (two bodies inside the 8 um gap, inelastic impact at
-              the flank), Coulomb + viscous friction with exact stick, motor-encoder quantization
+      plant : rigid drive with lost motion (two bodies inside the 8 um gap, tested at
+              mid-sub-step; inelastic impact at the flank), Coulomb + viscous friction with exact stick, motor-encoder quantization
               (round half to even; semi-closed loop), screw thermal growth (temperature from
               friction power + motion heat; it moves the table, not the feedback).
     Off in default.ron and therefore not implemented: Stribeck, stroke friction, gravity, lead
