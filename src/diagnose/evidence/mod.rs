@@ -213,6 +213,18 @@ pub fn line_fit(x: &[f64], y: &[f64]) -> Option<(f64, f64)> {
     (a.is_finite() && b.is_finite() && f.var_unit[1].is_finite()).then_some((a, b))
 }
 
+/// Least-squares coefficients of y ≈ X·c (X: `rows` × `cols`, given by `x(row, col)`);
+/// None when a coefficient is not finite.
+pub fn lstsq_coef(
+    rows: usize,
+    cols: usize,
+    x: impl Fn(usize, usize) -> f64,
+    y: &[f64],
+) -> Option<Vec<f64>> {
+    let f = lstsq(rows, cols, x, y)?;
+    f.coef.iter().all(|c| c.is_finite()).then_some(f.coef)
+}
+
 /// Least-squares solution of a small problem.
 struct LsFit {
     coef: Vec<f64>,
