@@ -1729,11 +1729,14 @@ fn growth_in_position(f: &Fitted, s: &Scores) -> bool {
 /// judges. Seen on the independent seeds 606 and 808: a lead error beside growth shrank the
 /// held-out residual by 18–39 % and the fitting residual grew by 9 %.
 fn lead_beside_growth(ctx: &Context, f: &Fitted) -> bool {
-    f.effect == Effect::LeadError
-        && ctx
-            .selected
-            .iter()
-            .any(|s| matches!(s.applied, Applied::Params(Effect::ThermalGrowth, _)))
+    f.effect == Effect::LeadError && growth_in_base(ctx)
+}
+
+/// Whether the round's base has a screw's growth among the effects selected.
+pub(super) fn growth_in_base(ctx: &Context) -> bool {
+    ctx.selected
+        .iter()
+        .any(|s| matches!(s.applied, Applied::Params(Effect::ThermalGrowth, _)))
 }
 
 /// A compliance whose ringing the command hardly excites (a resonance above ~100 Hz behind

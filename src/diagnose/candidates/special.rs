@@ -1113,8 +1113,10 @@ fn fit_lead(ctx: &Context, ev: Evidence) -> Result<Option<Fitted>, DiagnoseError
     // they leave more of the fitting part than nothing: 5454 case_051, a table of knots
     // every 8 mm whose spectrum peaked at 6.3 mm, the harmonics' fitting part 14 % worse):
     // the table may still claim the residual as a function of the travel; the harmonics
-    // keep the spectrum's verdict (the figures are reported either way).
-    let period_used = ev.pass && harm_gain > 0.0;
+    // keep the spectrum's verdict (the figures are reported either way). Beside a screw's
+    // growth the fitting part cannot tell (the growth took the lead's cumulative part
+    // there, see `lead_beside_growth`): the period stands.
+    let period_used = ev.pass && (harm_gain > 0.0 || super::growth_in_base(ctx));
     let ev = match (!period_used).then(|| table_signature(ctx, &ev)).flatten() {
         Some(tev) => {
             if tev.pass
