@@ -866,19 +866,9 @@ pub struct Round {
 /// significant ones first (both signature and shrink), then by score.
 pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError> {
     let next = AtomicUsize::new(0);
-    // One job per effect, a compliance that may be a payload two (payload, screw: the two
-    // slowest fits, run side by side). The slowest first, so that neither thread is left
-    // with one at the end; the results are put back in the given order below.
-    let mut order: Vec<(usize, SpringJob)> = Vec::new();
-    for (i, e) in effects.iter().enumerate() {
-        if *e == Effect::Compliance && ctx.payload_possible() {
-            order.push((i, SpringJob::Payload));
-            order.push((i, SpringJob::Screw));
-        } else {
-            order.push((i, SpringJob::Whole));
-        }
-    }
-    order.sort_by_key(|&(i, _)| std::cmp::Reverse(fit_weight(effects[i])));
+    let order = job_order(ctx, effects);
+    let label = |i: usize, job: SpringJob| job_label(effects[i], job);
+    let secs: Mutex<std::collections::BTreeMap<String, f64>> = Mutex::new(Default::default());
     let results: Mutex<Vec<(usize, SpringJob, Fitted)>> = Mutex::new(Vec::new());
     let first_err: Mutex<Option<DiagnoseError>> = Mutex::new(None);
     std::thread::scope(|s| {
@@ -896,9 +886,13 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
                         SpringJob::Payload => ctx.fit_payload(ctx.evidence(e)),
                         SpringJob::Screw => ctx.fit_screw_spring(ctx.evidence(e)),
                     };
+                    let took_s = t0.elapsed().as_secs_f64();
+                    if let Ok(mut m) = secs.lock() {
+                        m.insert(label(i, job), took_s);
+                    }
                     // Development aid: each fit's wall time (`AXB_TIME=1`).
                     if std::env::var_os("AXB_TIME").is_some() {
-                        eprintln!("TIME {e:?} {job:?} {:.3}", t0.elapsed().as_secs_f64());
+                        eprintln!("TIME {e:?} {job:?} {took_s:.3}");
                     }
                     match fitted {
                         Ok(Some(f)) => {
@@ -921,6 +915,9 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
     });
     if let Some(e) = first_err.into_inner().ok().flatten() {
         return Err(e);
+    }
+    if let (Ok(mut m), Ok(took)) = (ctx.eng.job_secs.lock(), secs.into_inner()) {
+        m.extend(took);
     }
     let mut r = merge_springs(ctx, results.into_inner().unwrap_or_default());
     r.sort_by_key(|x| x.0);
@@ -982,6 +979,53 @@ pub fn best_without<'f>(
         .map(|(f, _, _)| f)
 }
 
+/// The jobs of [`fit_all`] in the order they start: one per effect, a compliance that may be
+/// a payload two (payload, screw: the two slowest fits, run side by side), each as (index in
+/// `effects`, job).
+///
+/// Longest first, so that neither thread is left with one at the end: by each job's wall
+/// time in the last round where it ran (the cost of a fit follows the effects already found,
+/// whose parameters it fits again beside its own), else by its rough weight. A long fit
+/// started last was a round's critical path (independent seed 5959 case_022, 24 s: a command
+/// delay's two fits, 1.4 s, started when the other core was nearly done; started first, the
+/// diagnosis took 4.4–4.7 s instead of 5.1–5.5 s). The order changes no result: each fit is
+/// the same on any thread, and [`fit_all`] puts the results back in the given order.
+fn job_order(ctx: &Context, effects: &[Effect]) -> Vec<(usize, SpringJob)> {
+    let mut order: Vec<(usize, SpringJob)> = Vec::new();
+    for (i, e) in effects.iter().enumerate() {
+        if *e == Effect::Compliance && ctx.payload_possible() {
+            order.push((i, SpringJob::Payload));
+            order.push((i, SpringJob::Screw));
+        } else {
+            order.push((i, SpringJob::Whole));
+        }
+    }
+    let last_secs = ctx
+        .eng
+        .job_secs
+        .lock()
+        .map(|m| m.clone())
+        .unwrap_or_default();
+    let longest = last_secs.values().copied().fold(0.0, f64::max);
+    let cost = |i: usize, job: SpringJob| {
+        if last_secs.is_empty() {
+            f64::from(fit_weight(effects[i]))
+        } else {
+            last_secs
+                .get(&job_label(effects[i], job))
+                .copied()
+                .unwrap_or(longest)
+        }
+    };
+    order.sort_by(|&(a, ja), &(b, jb)| cost(b, jb).total_cmp(&cost(a, ja)));
+    order
+}
+
+/// A job's key in `Engine::job_secs`.
+fn job_label(e: Effect, job: SpringJob) -> String {
+    format!("{e:?}/{job:?}")
+}
+
 /// A job of [`fit_all`]: an effect's whole fit, or one of a compliance's two springs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum SpringJob {
@@ -1013,14 +1057,18 @@ fn merge_springs(ctx: &Context, r: Vec<(usize, SpringJob, Fitted)>) -> Vec<(usiz
     out
 }
 
-/// Rough cost of fitting `e`: the scheduling order of [`fit_all`] (longest first). From each
-/// fit's wall time (`AXB_TIME=1`) on the 60 s record of `bench --diagnose 60000`: a play's
-/// fits (three starts, a switching replay) and a compliance's are the slowest.
+/// Rough cost of fitting `e`: the scheduling order of [`fit_all`]'s first round (longest
+/// first; later rounds go by the last round's wall times). From each fit's wall time
+/// (`AXB_TIME=1`) on the 60 s record of `bench --diagnose 60000`: a play's fits (three
+/// starts, a switching replay) and a compliance's are the slowest, and a delay's (two fits,
+/// a pure delay and a lag, each beside the calibration's ratios when its signature is
+/// there) took 1.4 s on independent seed 5959 case_022 and is often short: it starts first.
 fn fit_weight(e: Effect) -> u32 {
     match e {
+        Effect::CommandDelay => 5,
         Effect::Compliance | Effect::BacklashAsymmetry => 4,
         Effect::Backlash | Effect::StrokeFriction => 3,
-        Effect::ThermalGrowth | Effect::StribeckFriction | Effect::CommandDelay => 2,
+        Effect::ThermalGrowth | Effect::StribeckFriction => 2,
         _ => 1,
     }
 }
