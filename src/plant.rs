@@ -34,9 +34,55 @@ pub struct FrictionModel {
     pub stribeck: bool,
     /// Breakaway (static) friction at zero speed when `stribeck` is on, N.
     pub static_n: f64,
-    /// Stribeck velocity, m/s: the excess over Coulomb falls as e^(−(v/v_s)²).
+    /// Stribeck velocity, m/s: the excess over Coulomb falls as e^(−(v/v_s)²), or as
+    /// e^(−|v|/v_s) when `stribeck_exponential`.
     pub stribeck_mps: f64,
     stribeck_inv_mps: f64,
+    /// The excess falls off exponentially rather than as a Gaussian.
+    pub stribeck_exponential: bool,
+    /// The power-law speed term ([`crate::preset::ViscousPower`]), if it acts.
+    pub power: Option<PowerLaw>,
+}
+
+/// The power-law speed term in SI: k·|v|^exponent above `core_mps`, `slope`·|v| below it
+/// (the same force at the core speed).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PowerLaw {
+    /// N per (m/s)^exponent.
+    pub k: f64,
+    /// The power of the speed.
+    pub exponent: f64,
+    /// Below this speed the term is linear, m/s.
+    pub core_mps: f64,
+    /// Its slope there, N·s/m.
+    pub slope: f64,
+}
+
+impl PowerLaw {
+    /// The term's magnitude at speed `speed_mps` ≥ 0, N.
+    #[inline]
+    pub fn force_n(&self, speed_mps: f64) -> f64 {
+        if speed_mps >= self.core_mps {
+            self.k * speed_mps.powf(self.exponent)
+        } else {
+            self.slope * speed_mps
+        }
+    }
+
+    fn from_params(v: &crate::preset::ViscousPower) -> Option<PowerLaw> {
+        if !v.enabled || v.force_at_100mm_per_s_n == 0.0 {
+            return None;
+        }
+        let v_ref = units::mm_per_s_to_m_per_s(100.0);
+        let k = v.force_at_100mm_per_s_n / v_ref.powf(v.exponent);
+        let core_mps = units::mm_per_s_to_m_per_s(v.core_mm_per_s);
+        Some(PowerLaw {
+            k,
+            exponent: v.exponent,
+            core_mps,
+            slope: k * core_mps.powf(v.exponent) / core_mps,
+        })
+    }
 }
 
 /// Per-body step constants of [`FrictionModel::step`].
@@ -70,13 +116,20 @@ impl FrictionModel {
             static_n: f.stribeck.static_n,
             stribeck_mps: units::mm_per_s_to_m_per_s(f.stribeck.velocity_mm_per_s),
             stribeck_inv_mps: 1.0 / units::mm_per_s_to_m_per_s(f.stribeck.velocity_mm_per_s),
+            stribeck_exponential: f.stribeck.shape == crate::preset::StribeckShape::Exponential,
+            power: PowerLaw::from_params(&f.viscous_power),
         }
     }
 
-    /// Kinetic friction magnitude (without the viscous part) at speed |v|.
+    /// Kinetic friction magnitude (without the linear viscous part) at speed |v|: the
+    /// power-law term is taken at the speed the step starts with, as the Stribeck term is.
     #[inline]
     fn kinetic_n(&self, speed_mps: f64, scale: f64, add_n: f64) -> f64 {
-        self.kinetic_scaled(speed_mps, scale) + add_n
+        let level = self.kinetic_scaled(speed_mps, scale) + add_n;
+        match &self.power {
+            Some(p) => level + p.force_n(speed_mps),
+            None => level,
+        }
     }
 
     /// The kinetic level without the stroke friction's addition.
@@ -84,12 +137,14 @@ impl FrictionModel {
     fn kinetic_scaled(&self, speed_mps: f64, scale: f64) -> f64 {
         if self.stribeck {
             let r = speed_mps * self.stribeck_inv_mps;
-            // Past 6 characteristic velocities the Stribeck term is below 3e-16 of the step;
-            // skipping exp there also avoids libm's slow underflow path.
-            if r > 6.0 {
+            // Past 6 characteristic velocities the Gaussian term is below 3e-16 of the step
+            // (the exponential one past 36); skipping exp there also avoids libm's slow
+            // underflow path.
+            let x = if self.stribeck_exponential { r } else { r * r };
+            if x > 36.0 {
                 return scale * self.coulomb_n;
             }
-            scale * (self.coulomb_n + (self.static_n - self.coulomb_n) * (-r * r).exp())
+            scale * (self.coulomb_n + (self.static_n - self.coulomb_n) * (-x).exp())
         } else {
             scale * self.coulomb_n
         }
@@ -140,8 +195,9 @@ impl FrictionModel {
         if !self.enabled {
             return (v_free, 0.0);
         }
-        // Without Stribeck and stroke friction (`FULL` false) the level is Coulomb's,
-        // exactly what the general expressions give with scale 1 and nothing added.
+        // Without Stribeck, stroke friction and the power-law speed term (`FULL` false) the
+        // level is Coulomb's, exactly what the general expressions give with scale 1 and
+        // nothing added.
         let (fk, f_static) = if FULL {
             let fk = self.kinetic_n(v_mps.abs(), scale, add_n);
             let f_static = if self.stribeck {
@@ -926,11 +982,13 @@ impl AxisPlant {
             && !self.lead.enabled
             && self.scale_q_m.is_none()
             && !self.friction.stribeck
+            && self.friction.power.is_none()
             && !matches!(self.mech, Mech::TwoMass { .. } | Mech::Payload { .. })
     }
 
-    /// [`AxisPlant::step`], with the rarely used effects (Stribeck, stroke friction, lead
-    /// error, scale quantization, two-mass coupling) compiled in only when `FULL`. Leaving
+    /// [`AxisPlant::step`], with the rarely used effects (Stribeck, stroke friction, the
+    /// power-law speed term, lead error, scale quantization, two-mass coupling) compiled in
+    /// only when `FULL`. Leaving
     /// out code that does nothing for a plain axis halves the work of its T3 step. The
     /// result is the same to the bit: a plant that is not [`AxisPlant::is_plain`] takes the
     /// full step either way.

@@ -670,7 +670,7 @@ fn joint_params(
         .collect();
     let mut start: Vec<f64> = last_ratios;
     for f in refit {
-        for (d, th) in f.effect.params().iter().zip(&f.theta) {
+        for (d, th) in f.applied.defs().iter().zip(&f.theta) {
             params.push(Param {
                 lo: d.lo,
                 hi: d.hi,
@@ -714,7 +714,7 @@ fn joint_refit(
         let mut at = ps.len();
         for (f, _) in selected {
             if f.refit {
-                let n = f.effect.params().len();
+                let n = f.applied.defs().len();
                 f.applied.with_theta(&th[at..at + n]).apply(&mut c);
                 at += n;
             } else {
@@ -739,7 +739,7 @@ fn joint_refit(
         .iter()
         .map(|(f, _)| {
             if f.refit {
-                let n = f.effect.params().len();
+                let n = f.applied.defs().len();
                 at += n;
                 fit.theta[at - n..at].to_vec()
             } else {

@@ -196,10 +196,44 @@ pub struct Friction {
     /// default) is the same both ways.
     #[serde(default)]
     pub viscous_split_n_s_per_m: f64,
+    /// A speed term that grows as a power of the speed, beside the linear one.
+    #[serde(default)]
+    pub viscous_power: ViscousPower,
     /// Breakaway friction above the Coulomb level at low speed.
     pub stribeck: Stribeck,
     /// Friction rise over repeated short strokes.
     pub stroke: StrokeFriction,
+}
+
+/// A speed-dependent friction that grows as a power of the speed, added to the linear
+/// viscous term: F = `force_at_100mm_per_s_n`·(|v| / 100 mm/s)^`exponent`, opposing the
+/// motion. Grease in a guideway or a seal's lip drags like this: more than linear at low
+/// speed, less at high speed (the viscous term F_v·|v|^δ_v of the generalised Stribeck
+/// curve). Below `core_mm_per_s` it is linear in the speed, through the same force there:
+/// a power under 1 has an infinite slope at rest, which no period-by-period step can
+/// follow. Off by default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViscousPower {
+    /// Whether the power-law term acts.
+    pub enabled: bool,
+    /// Its force at 100 mm/s, N.
+    pub force_at_100mm_per_s_n: f64,
+    /// The power of the speed (1: linear; under 1: a grease or a seal).
+    pub exponent: f64,
+    /// Below this speed the term is linear in the speed, mm/s.
+    pub core_mm_per_s: f64,
+}
+
+impl Default for ViscousPower {
+    fn default() -> Self {
+        ViscousPower {
+            enabled: false,
+            force_at_100mm_per_s_n: 0.0,
+            exponent: 0.5,
+            core_mm_per_s: 1.0,
+        }
+    }
 }
 
 /// Breakaway friction: at rest the slide holds up to `static_n`; the kinetic level falls
@@ -211,9 +245,28 @@ pub struct Stribeck {
     pub enabled: bool,
     /// Breakaway (static) friction, N; not below the Coulomb level.
     pub static_n: f64,
-    /// Stribeck velocity, mm/s: the kinetic level decays as e^(−(v/v_s)²) toward Coulomb.
+    /// Stribeck velocity, mm/s: the kinetic level decays toward Coulomb as
+    /// e^(−(v/v_s)²), or e^(−|v|/v_s) with [`StribeckShape::Exponential`].
     pub velocity_mm_per_s: f64,
+    /// How the breakaway excess falls off with the speed.
+    #[serde(default)]
+    pub shape: StribeckShape,
 }
+
+/// How the breakaway excess of [`Stribeck`] falls off with the speed: the two exponents of
+/// the generalised Stribeck curve e^(−|v/v_s|^δ) that the friction literature fits most,
+/// δ = 2 and δ = 1. The exponential keeps more of the excess well above v_s.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StribeckShape {
+    /// e^(−(v/v_s)²).
+    #[default]
+    Gaussian,
+    /// e^(−|v|/v_s).
+    Exponential,
+}
+
+crate::choice_enum!(StribeckShape { Gaussian => "gaussian", Exponential => "exponential" });
 
 /// How the lubricant film of [`StrokeFriction`] wears.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -664,6 +717,30 @@ impl Fields for Friction {
                 &mut self.viscous_split_n_s_per_m,
                 Num::closed("N*s/m", -1e8, 1e8),
             );
+            w.nest("viscous_power", |w| {
+                let v = &mut self.viscous_power;
+                w.flag("enabled", "power-law speed term on", &mut v.enabled);
+                w.when(v.enabled, |w| {
+                    w.num(
+                        "force_at_100mm_per_s_n",
+                        "force at 100 mm/s",
+                        &mut v.force_at_100mm_per_s_n,
+                        Num::closed("N", 0.0, 1e6),
+                    );
+                    w.num(
+                        "exponent",
+                        "speed exponent",
+                        &mut v.exponent,
+                        Num::closed("", 0.05, 3.0),
+                    );
+                    w.num(
+                        "core_mm_per_s",
+                        "linear below",
+                        &mut v.core_mm_per_s,
+                        Num::closed("mm/s", 1e-3, 1e3),
+                    );
+                });
+            });
             w.nest("stribeck", |w| {
                 w.flag("enabled", "Stribeck on", &mut self.stribeck.enabled);
                 w.when(self.stribeck.enabled, |w| {
@@ -679,6 +756,7 @@ impl Fields for Friction {
                         &mut self.stribeck.velocity_mm_per_s,
                         Num::closed("mm/s", 1e-4, 1e4),
                     );
+                    w.choice("shape", "Stribeck fall-off", &mut self.stribeck.shape);
                 });
             });
             w.nest("stroke", |w| {

@@ -1647,3 +1647,49 @@ fn a_stiffer_mount_counts_by_a_smaller_lag() {
     let c = ranked(&r, "compliance");
     assert!(c.note.contains("stiff mount"), "{}", c.note);
 }
+
+#[test]
+fn a_stribeck_friction_is_fitted_with_the_fall_off_the_record_has() {
+    // Single-effect records 16 and 18 of the independent seed 4747 hide a breakaway excess
+    // that falls off as e^(−|v|/v_s) (18.3 N at 2.55 mm/s, 38.4 N at 3.34 mm/s), record 17
+    // one that falls off as e^(−(v/v_s)²) (18.0 N at 0.71 mm/s). A Gaussian fitted to the
+    // exponential ones left 3× the fitting residual the exponential leaves, with its excess
+    // 24–26 % low; each record now keeps the shape it has, and its figures.
+    for (i, exponential, excess_n, v_mm_s) in [
+        (16, true, 18.328, 2.546),
+        (18, true, 38.378, 3.339),
+        (17, false, 18.014, 0.709),
+    ] {
+        let r = named_single(4747, i, "stribeck_friction");
+        let s = ranked(&r, "stribeck_friction");
+        assert_eq!(
+            s.note.contains("falls off as e^(-|v|/"),
+            exponential,
+            "case {i}: {}",
+            s.note
+        );
+        let got_n = s.params["breakaway_excess_n"];
+        let got_v = s.params["velocity_mm_per_s"];
+        assert!(
+            (got_n / excess_n - 1.0).abs() < 0.1 && (got_v / v_mm_s - 1.0).abs() < 0.15,
+            "case {i}: {got_n:.2} N at {got_v:.3} mm/s, hidden {excess_n} N at {v_mm_s} mm/s"
+        );
+    }
+}
+
+#[test]
+fn a_viscous_friction_that_grows_as_a_power_of_the_speed_is_fitted_so() {
+    // Two-effect record 68 of the independent seed 5252: a viscous friction of 17.7 N at
+    // 100 mm/s growing as |v|^0.57, beside a screw's growth. A linear coefficient took the
+    // force (65 % of it held out) but left the position 50 % worse, and a lead error was
+    // named in place of both. As a power of the speed it takes both channels, and the
+    // growth is found beside it.
+    let r = both_selected(5252, 68, &["viscous_friction", "thermal_growth"]);
+    let v = ranked(&r, "viscous_friction");
+    let f100 = v.params["force_at_100mm_per_s_n"];
+    let delta = v.params["exponent"];
+    assert!(
+        (f100 / 17.728 - 1.0).abs() < 0.2 && (delta - 0.568).abs() < 0.1,
+        "{f100:.2} N at 100 mm/s, exponent {delta:.3}; hidden 17.73 N and 0.568"
+    );
+}

@@ -136,6 +136,83 @@ fn a_viscous_split_drags_more_one_way_by_exactly_twice_the_split() {
 }
 
 #[test]
+fn a_power_law_speed_term_adds_its_force_at_each_speed() {
+    // Coulomb 100 N, viscous 800 N·s/m and 20 N·(|v| / 100 mm/s)^0.5 at 50 and 25 mm/s:
+    // 100 + 800·v + 20·√(v / 0.1 m/s). The power term is taken at the speed a step starts
+    // with, which at a constant feed is the speed it ends with to far below a µN.
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.coulomb_n = 100.0;
+    a.friction.viscous_n_s_per_m = 800.0;
+    a.friction.stribeck.enabled = false;
+    a.friction.viscous_power.enabled = true;
+    a.friction.viscous_power.force_at_100mm_per_s_n = 20.0;
+    a.friction.viscous_power.exponent = 0.5;
+    let m = run(&p, "G90 G01 X100. F3000\nX50. F1500\nM30\n");
+    let tr = &m.trace;
+    let fric = col(tr, "x.friction");
+    let vel = col(tr, "x.vel");
+    for t_s in [1.0, 3.5] {
+        let k = at(tr, t_s);
+        let v = vel[k];
+        let want = 100.0 + 800.0 * v.abs() + 20.0 * (v.abs() / 0.1).sqrt();
+        assert!(
+            (fric[k].abs() - want).abs() < 1e-6,
+            "t = {t_s} s at {v} m/s: friction {} N, want {want} N",
+            fric[k]
+        );
+    }
+    let k = at(tr, 1.0);
+    assert!(
+        (vel[k] - 0.05).abs() < 1e-4,
+        "mid-stroke speed {} m/s, expected 50 mm/s",
+        vel[k]
+    );
+    // Below the core speed (1 mm/s) it is linear, through the same force there: a power
+    // under 1 would have an infinite slope at rest.
+    let law = axisbench::plant::FrictionModel::from_params(&p.axes[0]);
+    let pl = law.power.expect("the power term is on");
+    let at_core = pl.force_n(mm_to_m(1.0));
+    // 20 N·(1 mm/s / 100 mm/s)^0.5 = 2 N.
+    assert!((at_core - 2.0).abs() < 1e-12, "{at_core}");
+    assert!((pl.force_n(mm_to_m(0.5)) - 0.5 * at_core).abs() < 1e-12);
+}
+
+#[test]
+fn a_stribeck_excess_falls_off_with_the_shape_asked_for() {
+    // Coulomb 100 N, breakaway 160 N, v_s = 2 mm/s: at 3 mm/s the Gaussian leaves
+    // 60·e^(−2.25) of the excess, the exponential 60·e^(−1.5).
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.coulomb_n = 100.0;
+    a.friction.viscous_n_s_per_m = 0.0;
+    a.friction.stribeck.enabled = true;
+    a.friction.stribeck.static_n = 160.0;
+    a.friction.stribeck.velocity_mm_per_s = 2.0;
+    for (shape, x) in [
+        (axisbench::preset::StribeckShape::Gaussian, 2.25f64),
+        (axisbench::preset::StribeckShape::Exponential, 1.5),
+    ] {
+        p.axes[0].friction.stribeck.shape = shape;
+        let m = run(&p, "G90 G01 X3. F180\nM30\n");
+        let tr = &m.trace;
+        let k = at(tr, 0.5);
+        let v = col(tr, "x.vel")[k];
+        assert!((v - 0.003).abs() < 1e-6, "{shape:?}: {v} m/s mid-stroke");
+        let r = v / 0.002;
+        let e = if x == 1.5 { r } else { r * r };
+        let want = 100.0 + 60.0 * (-e).exp();
+        let got = -col(tr, "x.friction")[k];
+        assert!(
+            (got - want).abs() < 1e-6,
+            "{shape:?}: friction {got} N at {v} m/s, want {want} N"
+        );
+    }
+}
+
+#[test]
 fn uncompensated_backlash_loses_b_at_a_reversal() {
     let mut p = plain();
     let a = &mut p.axes[0];

@@ -101,6 +101,29 @@ fn a_viscous_split_beyond_the_coefficient_is_refused_by_name() {
 }
 
 #[test]
+fn a_power_law_speed_term_loads_and_its_exponent_is_checked_by_name() {
+    let text = default_text().replace(
+        "viscous_n_s_per_m: 800.0,",
+        "viscous_n_s_per_m: 800.0,\n                viscous_power: (enabled: true, force_at_100mm_per_s_n: 15.0, exponent: 0.6, core_mm_per_s: 2.0),",
+    );
+    let p = Preset::from_ron(&text, "power.ron").expect("a power-law term loads");
+    let v = &p.axes[0].friction.viscous_power;
+    assert!(v.enabled && v.force_at_100mm_per_s_n == 15.0 && v.exponent == 0.6);
+    let e = invalid(&text.replace("exponent: 0.6", "exponent: 0.0"));
+    assert!(
+        e.iter()
+            .any(|m| m.contains("axes.x.friction.viscous_power.exponent")
+                && m.contains("outside the allowed range")),
+        "{e:?}"
+    );
+    let d = Preset::from_ron(&default_text(), "default.ron").expect("default loads");
+    assert!(
+        !d.axes[0].friction.viscous_power.enabled,
+        "off unless asked for"
+    );
+}
+
+#[test]
 fn periods_must_be_integer_multiples() {
     let e = invalid(&default_text().replace("t2_s: 0.001", "t2_s: 0.0007"));
     assert!(e.iter().any(|m| m.starts_with("timing.t1_s")), "{e:?}");

@@ -217,7 +217,63 @@ fn linear(ctx: &Context, effect: Effect) -> Evidence {
     if let Some((s, t_s)) = split {
         ev = ev.with("split_n_s_per_m", s).with("split_t", t_s);
     }
+    if effect == Effect::ViscousFriction
+        && let Some(p) = viscous_power(ctx)
+    {
+        ev.text += &format!(
+            "; a speed term that grows as |v|^{:.2} beside the linear one, {:.3} n at 100 mm/s ({:.1} standard errors)",
+            p.exponent, p.force_at_100_n, p.t
+        );
+        ev = ev
+            .with("power_exponent", p.exponent)
+            .with("power_n_at_100mm_per_s", p.force_at_100_n)
+            .with("power_t", p.t);
+    }
     ev
+}
+
+/// Powers of the speed [`viscous_power`] tries: the grease and seal laws of the friction
+/// literature lie between the square root and about 0.8.
+const POWER_EXPONENTS: [f64; 3] = [0.4, 0.55, 0.7];
+
+/// A speed term that grows as a power of the speed, regressed beside the base columns.
+struct PowerTerm {
+    exponent: f64,
+    /// Its coefficient as a force at 100 mm/s, N.
+    force_at_100_n: f64,
+    t: f64,
+}
+
+/// The speed term c·sign(v)·(|v| / 100 mm/s)^δ, regressed beside the base columns for each
+/// δ of [`POWER_EXPONENTS`], the one that stands clearest kept. A friction that grows less
+/// than linearly with the speed leaves a residual that the linear speed term and the
+/// direction term take only between them, bent: the power's column takes the bend. None
+/// without a force residual.
+fn viscous_power(ctx: &Context) -> Option<PowerTerm> {
+    let v_ref = mm_per_s_to_m_per_s(100.0);
+    let mut best: Option<PowerTerm> = None;
+    for delta in POWER_EXPONENTS {
+        let mut cols = base_columns(ctx);
+        cols.push(
+            ctx.sig
+                .vel_mps
+                .iter()
+                .map(|&v| dir(v) * (v.abs() / v_ref).powf(delta))
+                .collect(),
+        );
+        let Some(r) = regress(ctx, &cols) else {
+            continue;
+        };
+        let t = t_of(&r, 4);
+        if best.as_ref().is_none_or(|b| t.abs() > b.t.abs()) {
+            best = Some(PowerTerm {
+                exponent: delta,
+                force_at_100_n: r.coef[4],
+                t,
+            });
+        }
+    }
+    best
 }
 
 /// The speed term that keeps its sign both ways, |v|, regressed beside the base columns:
@@ -562,6 +618,132 @@ pub fn fit_split(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, Diagnos
         &|th| Applied::Split(th.to_vec()),
         &|_| "a coefficient that differs by direction (it explained more of the fitting part than one coefficient)".into(),
     )
+}
+
+/// The smallest exponent [`fit_power`] may reach. Toward 0 the power law flattens into a
+/// level that does not depend on the speed, a Coulomb friction under another name: on 5353
+/// case_072 (a power law of 0.49 beside a Coulomb friction) a fit down to 0.1 took both as
+/// one power of 0.1, and one bounded at 0.3 ended on the bound (as on 5151 case_066, a
+/// power of 0.75 beside a Coulomb friction), with the Coulomb friction's level in it. A fit
+/// that ends there is dropped: the Coulomb friction is fitted first, and the power beside
+/// it in the next round.
+const POWER_EXPONENT_MIN: f64 = 0.3;
+
+/// The parameters of [`fit_power`].
+pub const POWER_DEFS: [ParamDef; 2] = [
+    ParamDef {
+        key: "force_at_100mm_per_s_n",
+        lo: 0.0,
+        hi: 1.0e4,
+        init: 20.0,
+    },
+    ParamDef {
+        key: "exponent",
+        lo: POWER_EXPONENT_MIN,
+        hi: 1.5,
+        init: 0.5,
+    },
+];
+
+/// Gives `c` a power-law speed term of `th[0]` N at 100 mm/s and exponent `th[1]` (see
+/// [`crate::preset::ViscousPower`]), beside its linear viscous term.
+pub fn set_power(c: &mut Cand, th: &[f64]) {
+    let f = &mut c.model.axis.friction;
+    f.enabled = true;
+    let v = &mut f.viscous_power;
+    v.enabled = true;
+    v.force_at_100mm_per_s_n = th[0].max(0.0);
+    v.exponent = th[1];
+}
+
+/// A viscous friction that grows as a power of the speed: the force at 100 mm/s and the
+/// exponent, from the evidence's power term, fitted as one coefficient is (the calibration
+/// ratios, the nominal's linear term among them, and the earlier effects move with it). The
+/// caller keeps it only when it leaves clearly less of the fitting part than the linear
+/// shapes. None when the power term does not stand clear, or takes away friction.
+pub fn fit_power(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, DiagnoseError> {
+    let fig = |k: &str| ev.figures.get(k).copied();
+    let (Some(f100), Some(delta)) = (
+        fig("power_n_at_100mm_per_s").filter(|f| *f > 0.0),
+        fig("power_exponent"),
+    ) else {
+        return Ok(None);
+    };
+    if fig("power_t").is_none_or(|t| t < MIN_T) {
+        return Ok(None);
+    }
+    let first = vec![vec![f100, delta], vec![f100, 0.7]];
+    ctx.fit_variant(
+        Effect::ViscousFriction,
+        &POWER_DEFS,
+        first,
+        ev,
+        &|th| Applied::Power(th.to_vec()),
+        &|th| {
+            format!(
+                "a speed term growing as |v|^{:.2}, {:.1} N at 100 mm/s (it explained more of the fitting part than a linear coefficient)",
+                th[1], th[0]
+            )
+        },
+    )
+    .map(|f| {
+        // A power that ends at its floor is a level, not a speed law (see
+        // [`POWER_EXPONENT_MIN`]). Otherwise, unlike the other variants, its parameters move
+        // again beside every later effect and in the final joint fit.
+        f.filter(|f| f.theta.get(1).is_some_and(|d| *d > POWER_EXPONENT_MIN + POWER_AT_FLOOR))
+            .map(|mut f| {
+                f.refit = true;
+                f
+            })
+    })
+}
+
+/// How close to [`POWER_EXPONENT_MIN`] a fitted power counts as having ended on it.
+const POWER_AT_FLOOR: f64 = 0.02;
+
+/// Gives `c` a Stribeck friction of `th` (excess N, velocity mm/s, as [`Effect::apply`]
+/// does) whose excess falls off as e^(−|v|/v_s).
+pub fn set_stribeck_exponential(c: &mut Cand, th: &[f64]) {
+    Effect::StribeckFriction.apply(th, &mut c.model);
+    c.model.axis.friction.stribeck.shape = crate::preset::StribeckShape::Exponential;
+}
+
+/// A Stribeck friction whose excess falls off exponentially with the speed rather than as a
+/// Gaussian (the two shapes of the generalised Stribeck curve the literature fits), from the
+/// same starts as the Gaussian and one at half its velocity, fitted as the Gaussian is.
+/// Tried only when the low-speed excess stands clear (the signature): the caller keeps it
+/// when it leaves clearly less of the fitting part. Its parameters move again beside later
+/// effects, as the Gaussian's do.
+pub fn fit_stribeck_exponential(
+    ctx: &Context,
+    ev: &Evidence,
+) -> Result<Option<Fitted>, DiagnoseError> {
+    if !ev.pass {
+        return Ok(None);
+    }
+    let mut first = super::starts(Effect::StribeckFriction, &ev.hint);
+    if let Some(h) = first.first().cloned() {
+        first.push(vec![h[0], (0.5 * h[1]).max(0.05)]);
+    }
+    ctx.fit_variant(
+        Effect::StribeckFriction,
+        Effect::StribeckFriction.params(),
+        first,
+        ev,
+        &|th| Applied::StribeckExp(th.to_vec()),
+        &|th| {
+            format!(
+                "an excess that falls off as e^(-|v|/{:.2} mm/s) (it explained more of the fitting part than a Gaussian fall-off)",
+                th[1]
+            )
+        },
+    )
+    .map(|f| {
+        f.map(|mut f| {
+            f.refit = true;
+            f
+        })
+    })
 }
 
 #[cfg(test)]

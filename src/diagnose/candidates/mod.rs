@@ -234,6 +234,11 @@ pub enum Applied {
     Film(Vec<f64>),
     /// A viscous friction that differs by direction (see [`friction::set_split`]).
     Split(Vec<f64>),
+    /// A speed term that grows as a power of the speed (see [`friction::set_power`]).
+    Power(Vec<f64>),
+    /// A Stribeck friction whose excess falls off exponentially (see
+    /// [`friction::set_stribeck_exponential`]).
+    StribeckExp(Vec<f64>),
     /// A payload on a mount that stiffens as it deflects (see [`special::set_hardening`]).
     Hardening(Vec<f64>),
     /// A compliance as the screw's spring between motor and table (see
@@ -249,7 +254,21 @@ impl Applied {
         match self {
             Applied::Params(e, th) => Some((*e, th)),
             Applied::Screw(th) => Some((Effect::Compliance, th)),
+            Applied::Power(th) => Some((Effect::ViscousFriction, th)),
+            Applied::StribeckExp(th) => Some((Effect::StribeckFriction, th)),
             _ => None,
+        }
+    }
+
+    /// The parameters [`Applied::fitted`] gives, as the solver bounds them (none for the
+    /// kinds a fit does not move again).
+    pub fn defs(&self) -> &'static [crate::diagnose::effects::ParamDef] {
+        match self {
+            Applied::Params(e, _) => e.params(),
+            Applied::Screw(_) => Effect::Compliance.params(),
+            Applied::Power(_) => &friction::POWER_DEFS,
+            Applied::StribeckExp(_) => Effect::StribeckFriction.params(),
+            _ => &[],
         }
     }
 
@@ -259,6 +278,8 @@ impl Applied {
         match self {
             Applied::Params(e, _) => Applied::Params(*e, th.to_vec()),
             Applied::Screw(_) => Applied::Screw(th.to_vec()),
+            Applied::Power(_) => Applied::Power(th.to_vec()),
+            Applied::StribeckExp(_) => Applied::StribeckExp(th.to_vec()),
             other => other.clone(),
         }
     }
@@ -270,6 +291,8 @@ impl Applied {
             Applied::LeadTable(t) => set_lead_table(c, t),
             Applied::Film(th) => friction::set_film(c, th),
             Applied::Split(th) => friction::set_split(c, th),
+            Applied::Power(th) => friction::set_power(c, th),
+            Applied::StribeckExp(th) => friction::set_stribeck_exponential(c, th),
             Applied::Hardening(th) => special::set_hardening(c, th),
             Applied::Screw(th) => super::effects::set_screw_spring(&mut c.model, th),
             Applied::DelayLag(th) => special::set_delay_lag(c, th),
@@ -310,6 +333,11 @@ impl Selected {
     /// The effect and its parameters, when they are fitted again in later rounds.
     fn refit_params(&self) -> Option<(Effect, &[f64])> {
         self.applied.fitted().filter(|_| self.refit)
+    }
+
+    /// [`Selected::refit_params`] with their bounds.
+    fn refit_defs(&self) -> Option<(&'static [crate::diagnose::effects::ParamDef], &[f64])> {
+        self.refit_params().map(|(_, th)| (self.applied.defs(), th))
     }
 }
 
@@ -407,9 +435,9 @@ impl Context<'_, '_> {
     fn selected_params(&self) -> Vec<Param> {
         self.selected
             .iter()
-            .filter_map(Selected::refit_params)
-            .flat_map(|(e, th)| {
-                e.params().iter().zip(th).map(|(d, v)| Param {
+            .filter_map(Selected::refit_defs)
+            .flat_map(|(defs, th)| {
+                defs.iter().zip(th).map(|(d, v)| Param {
                     lo: d.lo,
                     hi: d.hi,
                     scale: v.abs().max(d.init.abs()).max(1e-9),
@@ -690,8 +718,15 @@ impl Context<'_, '_> {
             Effect::Compliance => self.fit_compliance(ev),
             Effect::ViscousFriction => {
                 let split = friction::fit_split(self, &ev)?;
+                let power = friction::fit_power(self, &ev)?;
                 let one = self.fit_lm(effect, ev)?;
-                Ok(self.richer_if_better(one, split, SPLIT_OVER_ONE))
+                let linear = self.richer_if_better(one, split, SPLIT_OVER_ONE);
+                Ok(self.richer_if_better(linear, power, POWER_OVER_LINEAR))
+            }
+            Effect::StribeckFriction => {
+                let exponential = friction::fit_stribeck_exponential(self, &ev)?;
+                let gaussian = self.fit_lm(effect, ev)?;
+                Ok(self.richer_if_better(gaussian, exponential, EXPONENTIAL_OVER_GAUSSIAN))
             }
             Effect::CommandDelay => {
                 let pure = self.fit_lm(effect, ev.clone())?;
@@ -1493,6 +1528,17 @@ const FILM_OVER_COUNT: f64 = 0.9;
 /// most this share of what one coefficient leaves of the fitting part (one more parameter
 /// must earn its place, as [`FILM_OVER_COUNT`]).
 const SPLIT_OVER_ONE: f64 = 0.9;
+
+/// A Stribeck friction whose excess falls off exponentially replaces the Gaussian one when
+/// it leaves at most this share of what the Gaussian leaves of the fitting part: the same
+/// number of parameters, but the Gaussian stays the shape unless the other is clearly
+/// better.
+const EXPONENTIAL_OVER_GAUSSIAN: f64 = 0.9;
+
+/// A viscous friction that grows as a power of the speed replaces the linear shapes when it
+/// leaves at most this share of what they leave of the fitting part (one more parameter, as
+/// [`SPLIT_OVER_ONE`]).
+const POWER_OVER_LINEAR: f64 = 0.9;
 
 /// A command delay with a first-order lag ([`special::fit_delay_lag`]) replaces the pure
 /// delay when it leaves at most this share of what the pure delay leaves of the fitting
