@@ -42,6 +42,10 @@ pub struct FrictionModel {
     pub stribeck_exponential: bool,
     /// The power-law speed term ([`crate::preset::ViscousPower`]), if it acts.
     pub power: Option<PowerLaw>,
+    /// 1 / the Coulomb smoothing speed, s/m: the kinetic level acts as level·tanh(v·this)
+    /// and the slide never sticks; 0 for the exact stick/slip law (see
+    /// [`crate::preset::Friction::coulomb_smoothing_mm_per_s`]).
+    pub smoothing_inv_s_per_m: f64,
 }
 
 /// The power-law speed term in SI: k·|v|^exponent above `core_mps`, `slope`·|v| below it
@@ -85,6 +89,18 @@ impl PowerLaw {
     }
 }
 
+/// |v|/ε beyond which tanh(v/ε) is ±1 in f64 (1 − tanh x < 2^−53 from x ≈ 18.7).
+const SMOOTH_FULL_LEVEL: f64 = 20.0;
+
+/// tanh through one expm1: libm's tanh took twice the rest of a friction step. With
+/// m = e^(−2|x|) − 1 (expm1, exact near 0), tanh|x| = −m/(2 + m), which loses nothing to
+/// cancellation at small |x| as 1 − e^(−2|x|) would.
+#[inline]
+fn fast_tanh(x: f64) -> f64 {
+    let m = (-2.0 * x.abs()).exp_m1();
+    (-m / (2.0 + m)).copysign(x)
+}
+
 /// Per-body step constants of [`FrictionModel::step`].
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Body {
@@ -118,6 +134,11 @@ impl FrictionModel {
             stribeck_inv_mps: 1.0 / units::mm_per_s_to_m_per_s(f.stribeck.velocity_mm_per_s),
             stribeck_exponential: f.stribeck.shape == crate::preset::StribeckShape::Exponential,
             power: PowerLaw::from_params(&f.viscous_power),
+            smoothing_inv_s_per_m: if f.coulomb_smoothing_mm_per_s > 0.0 {
+                1.0 / units::mm_per_s_to_m_per_s(f.coulomb_smoothing_mm_per_s)
+            } else {
+                0.0
+            },
         }
     }
 
@@ -209,6 +230,9 @@ impl FrictionModel {
         } else {
             (self.coulomb_n, self.coulomb_n)
         };
+        if FULL && self.smoothing_inv_s_per_m > 0.0 {
+            return self.finish_smooth(body, v_mps, v_free, fk);
+        }
         if let Some(neg) = &body.neg {
             return self.finish_split(body, neg, v_free, fk, f_static);
         }
@@ -222,6 +246,52 @@ impl FrictionModel {
             return (0.0, f_stop);
         }
         (v_new, -fk.copysign(v_free) - self.viscous_n_s_per_m * v_new)
+    }
+
+    /// The end of [`FrictionModel::step`] with a smoothed Coulomb level: m·(v − v_free)/h
+    /// = −c·v − fk·tanh(v/ε), taken linearly implicit (the tanh linearised at the step's
+    /// start speed, one tanh per step), because its slope fk/ε near rest (up to
+    /// 400 000 N·s/m at 40 N over 0.1 mm/s) makes an explicit step unstable at any T3 the
+    /// model runs. A step that would cross rest from beyond the smoothing is linearised at
+    /// rest instead, and the result is kept within the bracket ±h·fk/m of the viscous step
+    /// that the friction can reach. There is no stick: at rest the friction is zero and
+    /// builds up with the speed.
+    #[cold]
+    #[inline(never)]
+    fn finish_smooth(&self, body: &Body, v_mps: f64, v_free: f64, fk: f64) -> (f64, f64) {
+        let c = match &body.neg {
+            Some(neg) if v_free < 0.0 => neg.2[1],
+            Some(neg) => neg.2[0],
+            None => self.viscous_n_s_per_m,
+        };
+        let inv = self.smoothing_inv_s_per_m;
+        let k = body.m_over_h;
+        let slope = k + c;
+        if slope <= 0.0 {
+            // A negative viscous coefficient beyond the mass's own: no implicit step; the
+            // friction at the start speed, explicitly.
+            let f = -c * v_mps - fk * fast_tanh(v_mps * inv);
+            return (v_free + f / k, f);
+        }
+        let x0 = v_mps * inv;
+        let mut v = if x0.abs() > SMOOTH_FULL_LEVEL {
+            // Far beyond the smoothing speed (where the record runs most of the time) the
+            // tanh is ±1 to the last bit and its slope 0: the step of the exact law.
+            let (visc_inv, kin_per_n) = match &body.neg {
+                Some(neg) if v_free < 0.0 => (neg.0, neg.1),
+                _ => (body.visc_inv, body.kin_per_n),
+            };
+            v_free * visc_inv - (kin_per_n * fk).copysign(x0)
+        } else {
+            let t0 = fast_tanh(x0);
+            let s0 = inv * (1.0 - t0 * t0);
+            (k * v_free - fk * (t0 - s0 * v_mps)) / (slope + fk * s0)
+        };
+        if v * v_mps < 0.0 {
+            v = k * v_free / (slope + fk * inv);
+        }
+        let v = v.clamp((k * v_free - fk) / slope, (k * v_free + fk) / slope);
+        (v, k * (v - v_free))
     }
 
     /// The end of [`FrictionModel::step`] with a viscous coefficient that differs by
@@ -983,6 +1053,7 @@ impl AxisPlant {
             && self.scale_q_m.is_none()
             && !self.friction.stribeck
             && self.friction.power.is_none()
+            && self.friction.smoothing_inv_s_per_m == 0.0
             && !matches!(self.mech, Mech::TwoMass { .. } | Mech::Payload { .. })
     }
 

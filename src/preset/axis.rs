@@ -187,6 +187,14 @@ pub struct Friction {
     pub enabled: bool,
     /// Coulomb (sliding) friction level, N; it flips sign at each reversal.
     pub coulomb_n: f64,
+    /// Speed over which the Coulomb level builds up, mm/s: the friction is
+    /// level·tanh(v / this) and the slide never sticks. 0 (the default) is the exact
+    /// stick/slip law, which flips the full level at the reversal and holds the slide at
+    /// rest while the drive force stays within it. A lubricated contact or a rolling guide
+    /// with a pre-sliding zone builds its friction up over a small speed (0.1–1 mm/s in the
+    /// friction literature's smooth models).
+    #[serde(default)]
+    pub coulomb_smoothing_mm_per_s: f64,
     /// Viscous friction per table speed, N·s/m.
     pub viscous_n_s_per_m: f64,
     /// Half the difference of the viscous coefficients by direction, N·s/m: moving in +
@@ -706,6 +714,12 @@ impl Fields for Friction {
         w.when(self.enabled, |w| {
             w.num("coulomb_n", "Coulomb", &mut self.coulomb_n, FORCE_N);
             w.num(
+                "coulomb_smoothing_mm_per_s",
+                "Coulomb smoothing (tanh)",
+                &mut self.coulomb_smoothing_mm_per_s,
+                Num::closed("mm/s", 0.0, 100.0),
+            );
+            w.num(
                 "viscous_n_s_per_m",
                 "viscous",
                 &mut self.viscous_n_s_per_m,
@@ -717,30 +731,7 @@ impl Fields for Friction {
                 &mut self.viscous_split_n_s_per_m,
                 Num::closed("N*s/m", -1e8, 1e8),
             );
-            w.nest("viscous_power", |w| {
-                let v = &mut self.viscous_power;
-                w.flag("enabled", "power-law speed term on", &mut v.enabled);
-                w.when(v.enabled, |w| {
-                    w.num(
-                        "force_at_100mm_per_s_n",
-                        "force at 100 mm/s",
-                        &mut v.force_at_100mm_per_s_n,
-                        Num::closed("N", 0.0, 1e6),
-                    );
-                    w.num(
-                        "exponent",
-                        "speed exponent",
-                        &mut v.exponent,
-                        Num::closed("", 0.05, 3.0),
-                    );
-                    w.num(
-                        "core_mm_per_s",
-                        "linear below",
-                        &mut v.core_mm_per_s,
-                        Num::closed("mm/s", 1e-3, 1e3),
-                    );
-                });
-            });
+            w.nest("viscous_power", |w| self.viscous_power.fields(w));
             w.nest("stribeck", |w| {
                 w.flag("enabled", "Stribeck on", &mut self.stribeck.enabled);
                 w.when(self.stribeck.enabled, |w| {
@@ -826,6 +817,32 @@ impl Fields for Friction {
                 ),
             );
         }
+    }
+}
+
+impl Fields for ViscousPower {
+    fn fields(&mut self, w: &mut Walker<'_>) {
+        w.flag("enabled", "power-law speed term on", &mut self.enabled);
+        w.when(self.enabled, |w| {
+            w.num(
+                "force_at_100mm_per_s_n",
+                "force at 100 mm/s",
+                &mut self.force_at_100mm_per_s_n,
+                Num::closed("N", 0.0, 1e6),
+            );
+            w.num(
+                "exponent",
+                "speed exponent",
+                &mut self.exponent,
+                Num::closed("", 0.05, 3.0),
+            );
+            w.num(
+                "core_mm_per_s",
+                "linear below",
+                &mut self.core_mm_per_s,
+                Num::closed("mm/s", 1e-3, 1e3),
+            );
+        });
     }
 }
 

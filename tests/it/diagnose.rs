@@ -1063,12 +1063,25 @@ fn a_near_tie_of_coulomb_and_stroke_friction_is_decided_by_the_fitting_part() {
     // smoothed over 1 mm/s). Their held-out ends hold long moves only, where the two laws
     // predict alike: 0.573 against 0.604 and 0.400 against 0.375 held-out, so the wrong one
     // came first. The fitting part, which saw the short strokes, tells them apart (0.480
-    // against 0.245, 0.571 against 0.457).
-    for (seed, i, effect) in [(1010, 24, "stroke_friction"), (909, 13, "coulomb_friction")] {
-        let r = named_single(seed, i, effect);
-        let e = ranked(&r, effect);
-        assert!(e.note.contains("by the fitting part"), "{:?}", e.note);
-    }
+    // against 0.245, 0.571 against 0.457). Since stop 56 the Coulomb friction of 909 is
+    // fitted with its smoothing (tanh(v/ε)), and that law leads outright: it is named with
+    // ε within 20 % of the hidden 1 mm/s, and the tie is not needed.
+    let r = named_single(1010, 24, "stroke_friction");
+    let e = ranked(&r, "stroke_friction");
+    assert!(e.note.contains("by the fitting part"), "{:?}", e.note);
+    let r = named_single(909, 13, "coulomb_friction");
+    let e = ranked(&r, "coulomb_friction");
+    let eps = e
+        .params
+        .get("smoothing_mm_per_s")
+        .copied()
+        .unwrap_or(f64::NAN);
+    assert!(
+        e.note.contains("by the fitting part") || (eps - 1.0).abs() < 0.2,
+        "{:?} {:?}",
+        e.note,
+        e.params
+    );
 }
 
 #[test]
@@ -1691,5 +1704,24 @@ fn a_viscous_friction_that_grows_as_a_power_of_the_speed_is_fitted_so() {
     assert!(
         (f100 / 17.728 - 1.0).abs() < 0.2 && (delta - 0.568).abs() < 0.1,
         "{f100:.2} N at 100 mm/s, exponent {delta:.3}; hidden 17.73 N and 0.568"
+    );
+}
+
+#[test]
+fn a_coulomb_friction_that_builds_up_over_a_small_speed_is_fitted_so_and_alone() {
+    // Single-effect record 13 of the independent seed 4747: 23.38 N of Coulomb friction
+    // built up as tanh(v / 0.815 mm/s). The exact stick/slip law took it with the
+    // calibration's viscous ratio on its +8 % bound (the true one is −4.6 %), and once the
+    // smooth law was in, a viscous friction of −24 N·s/m "explained" 65 % held out: the
+    // calibration undoing itself. Fitted as tanh(v/ε) it takes the level and the speed,
+    // and the viscous term that brings the total back within ±8 % of the nominal's is a
+    // calibration matter.
+    let r = named_single(4747, 13, "coulomb_friction");
+    assert_eq!(r.selected, ["coulomb_friction"], "{:#?}", r.ranking);
+    let c = ranked(&r, "coulomb_friction");
+    let (fc, eps) = (c.params["force_n"], c.params["smoothing_mm_per_s"]);
+    assert!(
+        (fc / 23.379 - 1.0).abs() < 0.06 && (eps / 0.815 - 1.0).abs() < 0.2,
+        "{fc:.2} N over {eps:.3} mm/s; hidden 23.38 N over 0.815 mm/s"
     );
 }

@@ -180,6 +180,46 @@ fn a_power_law_speed_term_adds_its_force_at_each_speed() {
 }
 
 #[test]
+fn a_smoothed_coulomb_level_lets_a_force_below_it_creep_where_the_exact_law_sticks() {
+    // 40 N of Coulomb friction built up as tanh(v / 0.5 mm/s) on a 100 kg slide, stepped
+    // at 0.1 ms (the slope at rest, 80 000 N·s/m, is 8× what an explicit step takes).
+    let mut p = plain();
+    let a = &mut p.axes[0];
+    a.friction.enabled = true;
+    a.friction.coulomb_n = 40.0;
+    a.friction.viscous_n_s_per_m = 0.0;
+    a.friction.stribeck.enabled = false;
+    let creep = |smoothing_mm_per_s: f64, drive_n: f64, viscous: f64| {
+        let mut a = p.axes[0].clone();
+        a.friction.coulomb_smoothing_mm_per_s = smoothing_mm_per_s;
+        a.friction.viscous_n_s_per_m = viscous;
+        let law = axisbench::plant::FrictionModel::from_params(&a);
+        let body = law.body(100.0, 1e-4);
+        let (mut v, mut f) = (0.0, 0.0);
+        for _ in 0..40_000 {
+            (v, f) = law.step::<true>(&body, v, 0.0, drive_n, 1.0, 0.0);
+        }
+        (v, f)
+    };
+    // 20 N against 40 N: the exact law holds the slide; the smooth one lets it creep where
+    // 40·tanh(v/ε) = 20, v = ε·atanh(0.5) = 0.2747 mm/s.
+    let (v_exact, f_exact) = creep(0.0, 20.0, 0.0);
+    assert_eq!(v_exact, 0.0, "the exact law sticks");
+    assert!((f_exact + 20.0).abs() < 1e-9, "{f_exact}");
+    let (v, f) = creep(0.5, 20.0, 0.0);
+    let want = mm_to_m(0.5) * 0.5f64.atanh();
+    assert!(
+        (v - want).abs() < 1e-6 * want,
+        "creep {v} m/s, want {want} m/s"
+    );
+    assert!((f + 20.0).abs() < 1e-6, "{f}");
+    // 60 N with 1000 N·s/m beside it: far above ε the full level acts, 60 = 40 + 1000·v.
+    let (v, f) = creep(0.5, 60.0, 1000.0);
+    assert!((v - 0.02).abs() < 1e-6, "{v} m/s, want 20 mm/s");
+    assert!((f + 60.0).abs() < 1e-6, "{f}");
+}
+
+#[test]
 fn a_stribeck_excess_falls_off_with_the_shape_asked_for() {
     // Coulomb 100 N, breakaway 160 N, v_s = 2 mm/s: at 3 mm/s the Gaussian leaves
     // 60·e^(−2.25) of the excess, the exponential 60·e^(−1.5).

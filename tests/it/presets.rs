@@ -124,6 +124,31 @@ fn a_power_law_speed_term_loads_and_its_exponent_is_checked_by_name() {
 }
 
 #[test]
+fn a_coulomb_smoothing_loads_and_is_checked_by_name() {
+    let text = default_text().replace(
+        "viscous_n_s_per_m: 800.0,",
+        "viscous_n_s_per_m: 800.0,\n                coulomb_smoothing_mm_per_s: 0.4,",
+    );
+    let p = Preset::from_ron(&text, "smooth.ron").expect("a smoothing loads");
+    assert_eq!(p.axes[0].friction.coulomb_smoothing_mm_per_s, 0.4);
+    let e = invalid(&text.replace(
+        "coulomb_smoothing_mm_per_s: 0.4",
+        "coulomb_smoothing_mm_per_s: -1.0",
+    ));
+    assert!(
+        e.iter()
+            .any(|m| m.contains("axes.x.friction.coulomb_smoothing_mm_per_s")
+                && m.contains("outside the allowed range")),
+        "{e:?}"
+    );
+    let d = Preset::from_ron(&default_text(), "default.ron").expect("default loads");
+    assert_eq!(
+        d.axes[0].friction.coulomb_smoothing_mm_per_s, 0.0,
+        "the exact law unless asked for"
+    );
+}
+
+#[test]
 fn periods_must_be_integer_multiples() {
     let e = invalid(&default_text().replace("t2_s: 0.001", "t2_s: 0.0007"));
     assert!(e.iter().any(|m| m.starts_with("timing.t1_s")), "{e:?}");

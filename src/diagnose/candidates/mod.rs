@@ -239,6 +239,9 @@ pub enum Applied {
     /// A Stribeck friction whose excess falls off exponentially (see
     /// [`friction::set_stribeck_exponential`]).
     StribeckExp(Vec<f64>),
+    /// A Coulomb friction that builds up as tanh(v/ε) (see
+    /// [`friction::set_coulomb_smooth`]).
+    CoulombSmooth(Vec<f64>),
     /// A payload on a mount that stiffens as it deflects (see [`special::set_hardening`]).
     Hardening(Vec<f64>),
     /// A compliance as the screw's spring between motor and table (see
@@ -256,6 +259,7 @@ impl Applied {
             Applied::Screw(th) => Some((Effect::Compliance, th)),
             Applied::Power(th) => Some((Effect::ViscousFriction, th)),
             Applied::StribeckExp(th) => Some((Effect::StribeckFriction, th)),
+            Applied::CoulombSmooth(th) => Some((Effect::CoulombFriction, th)),
             _ => None,
         }
     }
@@ -268,6 +272,7 @@ impl Applied {
             Applied::Screw(_) => Effect::Compliance.params(),
             Applied::Power(_) => &friction::POWER_DEFS,
             Applied::StribeckExp(_) => Effect::StribeckFriction.params(),
+            Applied::CoulombSmooth(_) => &friction::SMOOTH_DEFS,
             _ => &[],
         }
     }
@@ -280,6 +285,7 @@ impl Applied {
             Applied::Screw(_) => Applied::Screw(th.to_vec()),
             Applied::Power(_) => Applied::Power(th.to_vec()),
             Applied::StribeckExp(_) => Applied::StribeckExp(th.to_vec()),
+            Applied::CoulombSmooth(_) => Applied::CoulombSmooth(th.to_vec()),
             other => other.clone(),
         }
     }
@@ -293,6 +299,7 @@ impl Applied {
             Applied::Split(th) => friction::set_split(c, th),
             Applied::Power(th) => friction::set_power(c, th),
             Applied::StribeckExp(th) => friction::set_stribeck_exponential(c, th),
+            Applied::CoulombSmooth(th) => friction::set_coulomb_smooth(c, th),
             Applied::Hardening(th) => special::set_hardening(c, th),
             Applied::Screw(th) => super::effects::set_screw_spring(&mut c.model, th),
             Applied::DelayLag(th) => special::set_delay_lag(c, th),
@@ -727,6 +734,11 @@ impl Context<'_, '_> {
                 let exponential = friction::fit_stribeck_exponential(self, &ev)?;
                 let gaussian = self.fit_lm(effect, ev)?;
                 Ok(self.richer_if_better(gaussian, exponential, EXPONENTIAL_OVER_GAUSSIAN))
+            }
+            Effect::CoulombFriction => {
+                let smooth = friction::fit_coulomb_smooth(self, &ev)?;
+                let exact = self.fit_lm(effect, ev)?;
+                Ok(self.richer_if_better(exact, smooth, SMOOTH_OVER_EXACT))
             }
             Effect::CommandDelay => {
                 let pure = self.fit_lm(effect, ev.clone())?;
@@ -1539,6 +1551,11 @@ const EXPONENTIAL_OVER_GAUSSIAN: f64 = 0.9;
 /// leaves at most this share of what they leave of the fitting part (one more parameter, as
 /// [`SPLIT_OVER_ONE`]).
 const POWER_OVER_LINEAR: f64 = 0.9;
+
+/// A Coulomb friction that builds up over a small speed replaces the exact stick/slip law
+/// when it leaves at most this share of what the exact law leaves of the fitting part (one
+/// more parameter, as [`SPLIT_OVER_ONE`]).
+const SMOOTH_OVER_EXACT: f64 = 0.9;
 
 /// A command delay with a first-order lag ([`special::fit_delay_lag`]) replaces the pure
 /// delay when it leaves at most this share of what the pure delay leaves of the fitting
