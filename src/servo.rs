@@ -231,7 +231,9 @@ impl Servo {
             st.integ_n = integ_new;
             raw
         } else {
-            saturate(raw, lim, integ_new, &mut st.integ_n)
+            let (clamped, integ) = saturate(raw, lim, integ_new, st.integ_n);
+            st.integ_n = integ;
+            clamped
         };
         st.force_n = g.cur_keep * st.force_n + g.cur_alpha * clamped;
         self.out = ServoOutput {
@@ -256,18 +258,21 @@ impl Servo {
 }
 
 /// The force limit and the conditional integration: the integrator is held while the output
-/// is saturated in the direction the integrator is pushing, so it does not wind up.
+/// is saturated in the direction the integrator is pushing, so it does not wind up. Returns
+/// (clamped command, integrator). Values in and out, no pointer into the servo's state: see
+/// `AxisPlant::step_with` on calls inside the T3 loop.
 #[cold]
 #[inline(never)]
-fn saturate(raw_n: f64, lim_n: f64, integ_new_n: f64, integ_n: &mut f64) -> f64 {
+fn saturate(raw_n: f64, lim_n: f64, integ_new_n: f64, integ_n: f64) -> (f64, f64) {
     let clamped = raw_n.clamp(-lim_n, lim_n);
     if clamped == raw_n
-        || (raw_n > lim_n && integ_new_n < *integ_n)
-        || (raw_n < -lim_n && integ_new_n > *integ_n)
+        || (raw_n > lim_n && integ_new_n < integ_n)
+        || (raw_n < -lim_n && integ_new_n > integ_n)
     {
-        *integ_n = integ_new_n;
+        (clamped, integ_new_n)
+    } else {
+        (clamped, integ_n)
     }
-    clamped
 }
 
 fn current_alpha(lag_s: f64, t3_s: f64) -> f64 {

@@ -74,6 +74,7 @@ pub fn run(
         ratios: &ratios0,
         sig: &sig,
         play_found: false,
+        coulomb_first: None,
     };
     let ranking = first_ranking(&ctx, effects, plan.first_round)?;
     let mut selected: Vec<(Fitted, Scores)> = Vec::new();
@@ -83,12 +84,7 @@ pub fn run(
     // next rounds fit on, and are added at the end.
     let mut deferred: Vec<Applied> = Vec::new();
     if let Some((f, s)) = ranking.first().filter(|(_, s)| s.significant) {
-        if proven_only(f) {
-            deferred.push(f.applied.clone());
-        } else {
-            base = f.cand.clone();
-            base_eval = f.eval.clone();
-        }
+        adopt(f, &mut deferred, &mut base, &mut base_eval);
         selected.push((f.clone(), *s));
     }
     if let Some(stop) = plan.after_first
@@ -132,6 +128,7 @@ pub fn run(
             ratios: &ratios,
             sig: &sig,
             play_found: play_found(&selected),
+            coulomb_first: coulomb_first(&ranking),
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
         trace_round(selected.len(), &round);
@@ -147,11 +144,7 @@ pub fn run(
         let Some((f, s)) = round.into_iter().next() else {
             break;
         };
-        if proven_only(&f) {
-            deferred.push(f.applied.clone());
-        } else {
-            base = f.cand.clone();
-            base_eval = f.eval.clone();
+        if adopt(&f, &mut deferred, &mut base, &mut base_eval) {
             take_refitted(&mut selected, &f.sel_theta, holds_growth(eng));
         }
         selected.push((f, s));
@@ -166,6 +159,28 @@ pub fn run(
 
 /// Fitted candidates with their scores, in order.
 type Ranked = Vec<(Fitted, Scores)>;
+
+/// Takes a selected effect in: an effect proven by its signature alone waits in `deferred`
+/// (added at the end), any other becomes the base of the next round. Returns whether it
+/// became the base.
+fn adopt(f: &Fitted, deferred: &mut Vec<Applied>, base: &mut Cand, base_eval: &mut Eval) -> bool {
+    if proven_only(f) {
+        deferred.push(f.applied.clone());
+        false
+    } else {
+        *base = f.cand.clone();
+        *base_eval = f.eval.clone();
+        true
+    }
+}
+
+/// The first round's Coulomb evidence (see `Context::coulomb_first`).
+fn coulomb_first(ranking: &[(Fitted, Scores)]) -> Option<&candidates::Evidence> {
+    ranking
+        .iter()
+        .find(|(f, _)| f.effect == Effect::CoulombFriction)
+        .map(|(f, _)| &f.evidence)
+}
 
 /// The end of the selection: the deferred effects added to the base, the joint re-fit and
 /// the naming order.
@@ -249,6 +264,7 @@ fn growth_first(
             ratios: &g.ratios,
             sig: &sig,
             play_found: false,
+            coulomb_first: None,
         };
         candidates::fit_all(&ctx, &rest)
     };

@@ -1725,3 +1725,37 @@ fn a_coulomb_friction_that_builds_up_over_a_small_speed_is_fitted_so_and_alone()
         "{fc:.2} N over {eps:.3} mm/s; hidden 23.38 N over 0.815 mm/s"
     );
 }
+
+#[test]
+fn a_coulomb_friction_that_a_stroke_friction_took_first_is_given_back_and_named() {
+    // Two-effect record 66 of the fresh seed 6464: 30.2 N more Coulomb friction and a stroke
+    // friction (film worn by distance, 33.7 N). The film law, selected first, fitted a
+    // recovery of 190 mm: a film that never heals, the Coulomb level held as a rise, and the
+    // residual it left had no direction-of-motion term for the Coulomb friction's test. The
+    // Coulomb friction beside it keeps the first round's signature and is fitted jointly
+    // with the stroke friction, which gives the level back.
+    let r = named_pair(6464, 66, ["stroke_friction", "coulomb_friction"]);
+    let c = ranked(&r, "coulomb_friction");
+    let fc = c.params["force_n"];
+    assert!(
+        (fc / 30.193 - 1.0).abs() < 0.15,
+        "{fc:.2} N of Coulomb friction; hidden 30.19 N"
+    );
+    // The film it leaves is the hidden one: 33.67 N recovering over 20.02 mm.
+    let s = ranked(&r, "stroke_friction");
+    let (rise, recovery) = (s.params["rise_n"], s.params["recovery_mm"]);
+    assert!(
+        (rise / 33.671 - 1.0).abs() < 0.15 && (recovery / 20.022 - 1.0).abs() < 0.2,
+        "{rise:.2} N over {recovery:.1} mm; hidden 33.67 N over 20.02 mm"
+    );
+    assert!(r.shrink > 0.9, "shrink {}", r.shrink);
+}
+
+#[test]
+fn a_stroke_friction_alone_does_not_give_a_coulomb_level_back() {
+    // Single-effect record 27 of the fresh seed 6464: a stroke friction alone. Beside it, on
+    // the first round's signature, a 1.4 N Coulomb friction took 1.4 % of the fitting part
+    // (and 16 % of the held-out end): no level given back, not counted.
+    let r = named_single(6464, 27, "stroke_friction");
+    assert_eq!(r.selected, ["stroke_friction"], "{:#?}", r.ranking);
+}

@@ -514,6 +514,28 @@ pub fn reversal_evidence(ctx: &Context, effect: Effect) -> Evidence {
 /// Report keys of the stroke friction whose film wears by distance ([`fit_film`]).
 const FILM_KEYS: [&str; 3] = ["rise_n", "pitch_mm", "recovery_mm"];
 
+/// The parameters of [`fit_film`] as the later rounds and the joint re-fit bound them.
+pub const FILM_DEFS: [ParamDef; 3] = [
+    ParamDef {
+        key: FILM_KEYS[0],
+        lo: 0.0,
+        hi: 5000.0,
+        init: 20.0,
+    },
+    ParamDef {
+        key: FILM_KEYS[1],
+        lo: 0.5,
+        hi: 200.0,
+        init: 10.0,
+    },
+    ParamDef {
+        key: FILM_KEYS[2],
+        lo: 1.0,
+        hi: 1000.0,
+        init: 20.0,
+    },
+];
+
 /// Gives `c` a stroke friction whose film wears by the distance run near the turning
 /// points (`th`: rise N, pitch mm, recovery mm; the film breaks down over one pitch).
 pub fn set_film(c: &mut Cand, th: &[f64]) {
@@ -534,23 +556,11 @@ pub fn set_film(c: &mut Cand, th: &[f64]) {
 /// only over a run of short strokes. Fitted on the base (the calibration ratios stay), so
 /// the caller keeps it only when it leaves less of the fitting part than the count law.
 pub fn fit_film(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, DiagnoseError> {
-    let params = [
-        Param {
-            lo: 0.0,
-            hi: 5000.0,
-            scale: 20.0,
-        },
-        Param {
-            lo: 0.5,
-            hi: 200.0,
-            scale: 10.0,
-        },
-        Param {
-            lo: 1.0,
-            hi: 1000.0,
-            scale: 20.0,
-        },
-    ];
+    let params = FILM_DEFS.map(|d| Param {
+        lo: d.lo,
+        hi: d.hi,
+        scale: d.init,
+    });
     let build = |th: &[f64]| {
         let mut c = ctx.base.clone();
         set_film(&mut c, th);
@@ -581,7 +591,10 @@ pub fn fit_film(ctx: &Context, ev: &Evidence) -> Result<Option<Fitted>, Diagnose
         extra: BTreeMap::new(),
         note: "a film worn by the distance run near the turning points (it explained more of the fitting part than the count of short strokes)".into(),
         evidence: ev.clone(),
-        refit: false,
+        // Fitted again beside the later candidates, as the count law is: a Coulomb
+        // friction beside it can take back the level its long recovery held (see
+        // `Context::nested_coulomb`).
+        refit: true,
         sel_theta: vec![],
         ratios: ctx.ratios.to_vec(),
         without: None,

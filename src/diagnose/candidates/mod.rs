@@ -260,6 +260,7 @@ impl Applied {
             Applied::Power(th) => Some((Effect::ViscousFriction, th)),
             Applied::StribeckExp(th) => Some((Effect::StribeckFriction, th)),
             Applied::CoulombSmooth(th) => Some((Effect::CoulombFriction, th)),
+            Applied::Film(th) => Some((Effect::StrokeFriction, th)),
             _ => None,
         }
     }
@@ -273,6 +274,7 @@ impl Applied {
             Applied::Power(_) => &friction::POWER_DEFS,
             Applied::StribeckExp(_) => Effect::StribeckFriction.params(),
             Applied::CoulombSmooth(_) => &friction::SMOOTH_DEFS,
+            Applied::Film(_) => &friction::FILM_DEFS,
             _ => &[],
         }
     }
@@ -286,6 +288,7 @@ impl Applied {
             Applied::Power(_) => Applied::Power(th.to_vec()),
             Applied::StribeckExp(_) => Applied::StribeckExp(th.to_vec()),
             Applied::CoulombSmooth(_) => Applied::CoulombSmooth(th.to_vec()),
+            Applied::Film(_) => Applied::Film(th.to_vec()),
             other => other.clone(),
         }
     }
@@ -379,6 +382,9 @@ pub struct Context<'c, 'a> {
     /// Whether play (backlash, either kind) is selected already, modelled or proven by its
     /// signature alone (see [`FORCE_SHARE`]).
     pub play_found: bool,
+    /// The first round's Coulomb evidence, for a Coulomb friction fitted beside a stroke
+    /// friction (see [`Context::nested_coulomb`]); None in the first round.
+    pub coulomb_first: Option<&'c Evidence>,
 }
 
 impl Context<'_, '_> {
@@ -736,6 +742,7 @@ impl Context<'_, '_> {
                 Ok(self.richer_if_better(gaussian, exponential, EXPONENTIAL_OVER_GAUSSIAN))
             }
             Effect::CoulombFriction => {
+                let ev = self.nested_coulomb(ev);
                 let smooth = friction::fit_coulomb_smooth(self, &ev)?;
                 let exact = self.fit_lm(effect, ev)?;
                 Ok(self.richer_if_better(exact, smooth, SMOOTH_OVER_EXACT))
@@ -746,6 +753,37 @@ impl Context<'_, '_> {
                 Ok(self.richer_if_better(pure, lag, LAG_OVER_PURE))
             }
             _ => self.fit_lm(effect, ev),
+        }
+    }
+
+    /// A stroke friction is a Coulomb friction that rises over short strokes (the two are
+    /// nested): selected first, with a long recovery, it holds a Coulomb level of the record
+    /// as a film that never heals, and the residual it leaves has no direction-of-motion
+    /// term for a Coulomb friction's own test to find. Beside it, a Coulomb friction whose
+    /// signature the first round found (on the calibrated residual, before the stroke
+    /// friction took it) keeps that signature, so that it is fitted jointly with the
+    /// stroke friction, which can give the level back. It counts only by what it adds to
+    /// that re-fitted stroke friction (see `Fitted::without`). Seen on the fresh seed 6464
+    /// case_066 (a Coulomb friction of 30 N and a stroke friction; the film law fitted a
+    /// recovery of 190 mm and the Coulomb friction beside it 0.1 N; now 28.5 N, held-out
+    /// position 4.1 → 0.5 µm). 6565 case_066 stays a miss: fitted jointly from there, the
+    /// Coulomb friction stops at 3.8 N of 19 N.
+    /// Such a Coulomb friction counts only by [`nested_coulomb_takes_fit`].
+    fn nested_coulomb(&self, ev: Evidence) -> Evidence {
+        let beside_stroke = self.selected.iter().any(|s| {
+            s.refit_params()
+                .is_some_and(|(e, _)| e == Effect::StrokeFriction)
+        });
+        match self.coulomb_first {
+            Some(first) if !ev.pass && first.pass && beside_stroke => Evidence {
+                text: format!(
+                    "{} (read on the calibrated residual, before the stroke friction, which holds a Coulomb level, took it)",
+                    first.text
+                ),
+                ..first.clone()
+            }
+            .with(FIRST_ROUND_KEY, 1.0),
+            _ => ev,
         }
     }
 
@@ -990,6 +1028,7 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
     bursts_a_state_explains(&mut ranked);
     stroke_beyond_coulomb(&mut ranked);
     stroke_or_coulomb_by_fit(&mut ranked);
+    nested_coulomb_takes_fit(&mut ranked);
     lead_or_growth_by_position(&mut ranked);
     compliance_unseen_in_holdout(ctx, &mut ranked);
     if ctx.selected.is_empty() {
@@ -1411,6 +1450,33 @@ fn stroke_beyond_coulomb(ranked: &mut [(Fitted, Scores)]) {
     );
     let (f, s) = &mut ranked[st];
     count_with_note(f, s, note);
+}
+
+/// The evidence figure that marks a Coulomb friction's signature as the first round's
+/// (see [`Context::nested_coulomb`]).
+const FIRST_ROUND_KEY: &str = "read_before_stroke_friction";
+
+/// A Coulomb friction on the first round's signature must take back a level: at least
+/// [`MIN_SHRINK`] of the fitting part's residual (against the joint fit without it, the
+/// stroke friction re-fitted too), the part that saw the short strokes the two are told
+/// apart by. On the fresh seed 6464 case_027 (a stroke friction alone) a 1.4 N Coulomb
+/// friction beside the film took 1.4 % of the fitting part and 16 % of the held-out end;
+/// on case_066 (both) 28.5 N took 49 %.
+fn nested_coulomb_takes_fit(ranked: &mut [(Fitted, Scores)]) {
+    for (f, s) in ranked.iter_mut() {
+        let nested = f.evidence.figures.contains_key(FIRST_ROUND_KEY);
+        if nested && s.significant && s.fit_shrink < MIN_SHRINK {
+            s.significant = false;
+            add_note(
+                f,
+                format!(
+                    "not counted: beside the stroke friction it takes {:.1} % of the fitting part, under the {:.0} % a Coulomb level given back by it takes",
+                    100.0 * s.fit_shrink,
+                    100.0 * MIN_SHRINK
+                ),
+            );
+        }
+    }
 }
 
 /// Coulomb and stroke friction whose held-out scores lie this close …
