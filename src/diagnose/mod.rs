@@ -537,27 +537,33 @@ impl Stage<'_> {
         // held-out part within 13 % of each other in 19 of 22.
         type Ranked = Vec<(candidates::Fitted, engine::Scores)>;
         let first_moved: Mutex<Option<(calibrate::Calibration, f64, Ranked)>> = Mutex::new(None);
-        let moved =
-            |ranked: &[(candidates::Fitted, engine::Scores)]| -> Result<bool, DiagnoseError> {
-                let Some((f, _)) = ranked.first() else {
-                    return Ok(false);
-                };
-                let again = calibrate::fit_again(self.eng0, &without_delay(&f.cand), &cal)?;
-                // A command shifted by one whole sample is a one-sample command delay as much as a
-                // skew; read beside the first effect alone it does not stop the first reading
-                // (seed 5151 case_071, a Stribeck friction and a one-sample delay: the delay was
-                // realigned away).
-                if !calibrate::skews_differ(cal.skew, again.skew)
-                    || again.lag_instead_of_skew().is_some()
-                {
-                    return Ok(false);
-                }
-                let j = self.eng0.j(&f.eval.hold_pos, f.eval.hold_force.as_deref());
-                if let Ok(mut m) = first_moved.lock() {
-                    *m = Some((again, j, ranked.to_vec()));
-                }
-                Ok(true)
+        let moved = |ranked: &[(candidates::Fitted, engine::Scores)]| -> Result<
+            select::AfterFirstSays,
+            DiagnoseError,
+        > {
+            let Some((f, _)) = ranked.first() else {
+                return Ok(select::AfterFirstSays::Go(None));
             };
+            let again = calibrate::fit_again(self.eng0, &without_delay(&f.cand), &cal)?;
+            // A command shifted by one whole sample is a one-sample command delay as much as a
+            // skew; read beside the first effect alone it does not stop the first reading
+            // (seed 5151 case_071, a Stribeck friction and a one-sample delay: the delay was
+            // realigned away).
+            if !calibrate::skews_differ(cal.skew, again.skew)
+                || again.lag_instead_of_skew().is_some()
+            {
+                // The same skew: the common lag read beside the first effect is a command
+                // delay's signature for the later rounds (see `candidates::special::delay`).
+                let lag = (!calibrate::skews_differ(cal.skew, again.skew))
+                    .then_some(again.common_lag_samples);
+                return Ok(select::AfterFirstSays::Go(lag));
+            }
+            let j = self.eng0.j(&f.eval.hold_pos, f.eval.hold_force.as_deref());
+            if let Ok(mut m) = first_moved.lock() {
+                *m = Some((again, j, ranked.to_vec()));
+            }
+            Ok(select::AfterFirstSays::Stop)
+        };
         let first = progress.within(0.02, 0.68, |p| {
             self.readings(cal.clone(), p, Some(&moved), None)
         })?;

@@ -75,6 +75,7 @@ pub fn run(
         sig: &sig,
         play_found: false,
         coulomb_first: None,
+        lag_beside_first: None,
     };
     let ranking = first_ranking(&ctx, effects, plan.first_round)?;
     let mut selected: Vec<(Fitted, Scores)> = Vec::new();
@@ -87,11 +88,14 @@ pub fn run(
         adopt(f, &mut deferred, &mut base, &mut base_eval);
         selected.push((f.clone(), *s));
     }
-    if let Some(stop) = plan.after_first
+    let mut lag_beside_first = None;
+    if let Some(ask) = plan.after_first
         && !selected.is_empty()
-        && stop(&ranking)?
     {
-        return Ok(None);
+        match ask(&ranking)? {
+            AfterFirstSays::Stop => return Ok(None),
+            AfterFirstSays::Go(lag) => lag_beside_first = lag,
+        }
     }
     if selected.is_empty()
         && max_effects >= 2
@@ -129,6 +133,7 @@ pub fn run(
             sig: &sig,
             play_found: play_found(&selected),
             coulomb_first: coulomb_first(&ranking),
+            lag_beside_first,
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
         trace_round(selected.len(), &round);
@@ -265,6 +270,7 @@ fn growth_first(
             sig: &sig,
             play_found: false,
             coulomb_first: None,
+            lag_beside_first: None,
         };
         candidates::fit_all(&ctx, &rest)
     };
@@ -346,9 +352,19 @@ pub struct Plan<'a> {
 }
 
 /// Asked by [`run`] with the first round's ranking once it has picked an effect (the first
-/// of the ranking): true stops the selection there (the diagnosis reads the channel shifts
-/// again beside that effect, and a reading that moves them starts afresh).
-pub type AfterFirst<'a> = dyn Fn(&[(Fitted, Scores)]) -> Result<bool, DiagnoseError> + Sync + 'a;
+/// of the ranking): the diagnosis reads the channel shifts again beside that effect, and a
+/// reading that moves them stops the selection and starts afresh.
+pub type AfterFirst<'a> =
+    dyn Fn(&[(Fitted, Scores)]) -> Result<AfterFirstSays, DiagnoseError> + Sync + 'a;
+
+/// What [`AfterFirst`] says.
+pub enum AfterFirstSays {
+    /// The selection stops here.
+    Stop,
+    /// The selection goes on, with the common lag of position and force (samples, negative:
+    /// late) read beside the first effect, when it was read.
+    Go(Option<f64>),
+}
 
 /// The outcome from the final joint fit `j`: the selected effects as they are named (see
 /// [`name_order`]).
@@ -742,7 +758,13 @@ fn joint_refit(
     let slow = selected
         .iter()
         .any(|(f, _)| f.refit && f.effect == Effect::ThermalGrowth);
-    let rows = |th: &[f64]| Ok(Some(eng.lm_rows(&eng.sim_fit_as(&build(th), slow)?)));
+    let rows = |th: &[f64]| {
+        let c = build(th);
+        if candidates::overdamped(&c) && !candidates::overdamped(nominal) {
+            return Ok(None);
+        }
+        Ok(Some(eng.lm_rows(&eng.sim_fit_as(&c, slow)?)))
+    };
     let fit = lm::fit(&start, &params, &rows, 0.03, 4)?;
     let cand = build(&fit.theta);
     let eval = eng.evaluate(&cand)?;

@@ -489,6 +489,36 @@ impl AxisParams {
 }
 
 impl AxisParams {
+    /// Damping ratio of the coupling's mode, c / (2·√(k·m)) over the reduced mass of the two
+    /// masses it joins (at rest, for a hardening mount); None for a rigid drive.
+    pub fn coupling_damping_ratio(&self) -> Option<f64> {
+        let (m_a, m_b, k_n_per_um, c) = match self.drive.coupling {
+            Coupling::Rigid => return None,
+            Coupling::TwoMass {
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+            } => (
+                self.drive.reflected_motor_mass_kg(),
+                self.drive.table_mass_kg,
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+            ),
+            Coupling::Payload {
+                mass_kg,
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+                ..
+            } => (
+                self.drive.reflected_motor_mass_kg() + self.drive.table_mass_kg,
+                mass_kg,
+                stiffness_n_per_um,
+                damping_n_s_per_m,
+            ),
+        };
+        let m_red = m_a * m_b / (m_a + m_b);
+        Some(c / (2.0 * (units::n_per_um_to_n_per_m(k_n_per_um) * m_red).sqrt()))
+    }
+
     /// How much stiffer than at rest a hardening payload mount ([`Coupling::Payload`]) can
     /// get: its tangent stiffness where it carries twice the force that accelerates the
     /// payload along with the whole axis at the motor's torque limit (the quasi-static

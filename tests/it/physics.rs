@@ -546,6 +546,12 @@ fn lightly_damped_coupling_decays_at_the_analytic_rate() {
         stiffness_n_per_um: w * w * m_red * 1e-6,
         damping_n_s_per_m: 2.0 * zeta * w * m_red,
     };
+    // The damping ratio the diagnosis bounds its fitted springs by is this mode's.
+    let z = a.coupling_damping_ratio().unwrap_or(f64::NAN);
+    assert!(
+        (z / zeta - 1.0).abs() < 1e-9,
+        "damping ratio {z}, built with {zeta}"
+    );
     let t3_s = 1e-3;
     let mut plant = AxisPlant::new(a, t3_s, Start::at_rest(Sensor::MotorEncoder, 0.0));
     assert_eq!(
@@ -594,6 +600,11 @@ fn a_payload_mount_deflects_by_its_law_under_a_steady_acceleration() {
             damping_n_s_per_m: c,
             hardening_deflection_um: d0_um,
         };
+        let z = a.coupling_damping_ratio().unwrap_or(f64::NAN);
+        assert!(
+            (z - 0.5).abs() < 1e-9,
+            "the mount's damping ratio {z}, built with 0.5"
+        );
         let mut plant = AxisPlant::new(a, 1e-3, Start::at_rest(Sensor::MotorEncoder, 0.0));
         let force_n = 500.0;
         for _ in 0..300 {

@@ -175,19 +175,45 @@ fn lead_period(ctx: &Context) -> Option<evidence::PositionPeriodic> {
     Some(p)
 }
 
+/// The figure of a command delay's evidence read beside the first effect (see [`delay`]):
+/// the lag on the calibrated model, samples.
+pub const LAG_BESIDE_KEY: &str = "lag_samples_calibrated";
+
 fn delay(ctx: &Context) -> Evidence {
     let lag = ctx.cal.common_lag_samples;
     let t3 = ctx.eng.split.main.t3_s;
+    let alone = if ctx.eng.has_force {
+        ""
+    } else {
+        " (position alone)"
+    };
     let text = format!(
-        "position and force both follow the model {:.2} samples ({:.2} ms) late{}",
+        "position and force both follow the model {:.2} samples ({:.2} ms) late{alone}",
         -lag,
         s_to_ms(-lag * t3),
-        if ctx.eng.has_force {
-            ""
-        } else {
-            " (position alone)"
-        }
     );
+    // The calibration read the lag against a model that lacks what the record holds: a
+    // friction law the model lacks shifts where the loop's response sits (the fresh seed 6666
+    // case_068, a Stribeck friction and a delay of 0.72 samples: 0.14 samples on the
+    // calibrated model, 0.86 beside the friction). Read again beside the first effect, the
+    // lag is the signature the later rounds test.
+    if lag > -MIN_SKEW
+        && let Some(beside) = ctx.lag_beside_first.filter(|l| *l <= -MIN_SKEW)
+    {
+        return Evidence {
+            pass: true,
+            text: format!(
+                "position and force both follow the model {:.2} samples ({:.2} ms) late{alone}, read beside the first effect found ({:.2} samples on the calibrated model)",
+                -beside,
+                s_to_ms(-beside * t3),
+                -lag
+            ),
+            hint: vec![s_to_ms(-lag * t3)],
+            ..Evidence::default()
+        }
+        .with("lag_samples", -beside)
+        .with(LAG_BESIDE_KEY, -lag);
+    }
     Evidence {
         pass: lag <= -MIN_SKEW,
         text,
@@ -1229,7 +1255,13 @@ pub fn fit_hardening(ctx: &Context, linear: &Fitted) -> Result<Option<Fitted>, D
         set_hardening(&mut c, th);
         c
     };
-    let rows = |th: &[f64]| Ok(Some(ctx.eng.lm_rows(&ctx.eng.sim_fit(&build(th))?)));
+    let rows = |th: &[f64]| {
+        let c = build(th);
+        if ctx.outside_springs(&c) {
+            return Ok(None);
+        }
+        Ok(Some(ctx.eng.lm_rows(&ctx.eng.sim_fit(&c)?)))
+    };
     // One start (the speed budget): half the linear stiffness, which took the large
     // deflections' share, hardening from the 1 m/s² deflection.
     let starts = [vec![0.5 * k0, c0, share0, d1_um]];
