@@ -760,7 +760,7 @@ fn joint_refit(
         .any(|(f, _)| f.refit && f.effect == Effect::ThermalGrowth);
     let rows = |th: &[f64]| {
         let c = build(th);
-        if candidates::overdamped(&c) && !candidates::overdamped(nominal) {
+        if candidates::outside_spring(&c) && !candidates::outside_spring(nominal) {
             return Ok(None);
         }
         Ok(Some(eng.lm_rows(&eng.sim_fit_as(&c, slow)?)))

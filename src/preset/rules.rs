@@ -489,9 +489,9 @@ impl AxisParams {
 }
 
 impl AxisParams {
-    /// Damping ratio of the coupling's mode, c / (2·√(k·m)) over the reduced mass of the two
-    /// masses it joins (at rest, for a hardening mount); None for a rigid drive.
-    pub fn coupling_damping_ratio(&self) -> Option<f64> {
+    /// The coupling's mode at rest: the reduced mass of the two masses it joins (kg), its
+    /// stiffness (N/m) and its damping (N·s/m); None for a rigid drive.
+    fn coupling_mode(&self) -> Option<(f64, f64, f64)> {
         let (m_a, m_b, k_n_per_um, c) = match self.drive.coupling {
             Coupling::Rigid => return None,
             Coupling::TwoMass {
@@ -516,7 +516,20 @@ impl AxisParams {
             ),
         };
         let m_red = m_a * m_b / (m_a + m_b);
-        Some(c / (2.0 * (units::n_per_um_to_n_per_m(k_n_per_um) * m_red).sqrt()))
+        Some((m_red, units::n_per_um_to_n_per_m(k_n_per_um), c))
+    }
+
+    /// Damping ratio of the coupling's mode, c / (2·√(k·m)) over the reduced mass of the two
+    /// masses it joins (at rest, for a hardening mount); None for a rigid drive.
+    pub fn coupling_damping_ratio(&self) -> Option<f64> {
+        self.coupling_mode()
+            .map(|(m_red, k, c)| c / (2.0 * (k * m_red).sqrt()))
+    }
+
+    /// Undamped natural frequency of the coupling's mode, √(k/m) over the same reduced mass
+    /// (rad/s, at rest); None for a rigid drive.
+    pub fn coupling_resonance_rad_per_s(&self) -> Option<f64> {
+        self.coupling_mode().map(|(m_red, k, _)| (k / m_red).sqrt())
     }
 
     /// How much stiffer than at rest a hardening payload mount ([`Coupling::Payload`]) can

@@ -552,6 +552,12 @@ fn lightly_damped_coupling_decays_at_the_analytic_rate() {
         (z / zeta - 1.0).abs() < 1e-9,
         "damping ratio {z}, built with {zeta}"
     );
+    // So is the resonance it bounds them by (below the record's Nyquist frequency).
+    let w_fit = a.coupling_resonance_rad_per_s().unwrap_or(f64::NAN);
+    assert!(
+        (w_fit / w - 1.0).abs() < 1e-9,
+        "resonance {w_fit} rad/s, built with {w}"
+    );
     let t3_s = 1e-3;
     let mut plant = AxisPlant::new(a, t3_s, Start::at_rest(Sensor::MotorEncoder, 0.0));
     assert_eq!(
