@@ -18,6 +18,7 @@ pub struct Args {
     pub report: Option<PathBuf>,
     pub apply: Option<PathBuf>,
     pub residuals: Option<PathBuf>,
+    pub cold_starts: bool,
 }
 
 /// A progress line on stderr, rewritten in place (stdout stays clean for the summary).
@@ -56,6 +57,7 @@ pub fn diagnose(a: Args) -> Result<()> {
         holdout: a.holdout,
         only,
         max_effects: 3,
+        warm_starts: !a.cold_starts,
     };
     let cancel = AtomicBool::new(false);
     let report_fn = progress_line;
@@ -116,14 +118,15 @@ pub fn diagnose(a: Args) -> Result<()> {
 
 fn print_summary(r: &Report, main: &str, validate: Option<&str>, secs: f64) {
     say!(
-        "diagnosis of axis {} against preset '{}': fit on {} ({} samples), held out: {} ({} samples); {:.2} s",
+        "diagnosis of axis {} against preset '{}': fit on {} ({} samples), held out: {} ({} samples); {:.2} s, {} replays of the record",
         r.axis,
         r.preset,
         main,
         r.samples_fit,
         validate.unwrap_or(&r.holdout_source),
         r.samples_holdout,
-        secs
+        secs,
+        r.replays
     );
     print_calibration(r);
     print_where(r);

@@ -196,6 +196,11 @@ pub struct Engine<'a> {
     /// Wall time of each job of the last round of candidate fits, s, by its label: the next
     /// round starts the longest first (see `candidates::fit_all`).
     pub job_secs: std::sync::Mutex<std::collections::BTreeMap<String, f64>>,
+    /// The parameters each warm-started fit found in the last round where it ran, by its
+    /// label: the next round starts it there (see `candidates::Context::fit_lm_defs`).
+    pub last_theta: std::sync::Mutex<std::collections::BTreeMap<String, Vec<f64>>>,
+    /// Whether the fits use `last_theta` (`Options::warm_starts`).
+    pub warm_starts: bool,
 }
 
 impl<'a> Engine<'a> {
@@ -220,6 +225,8 @@ impl<'a> Engine<'a> {
             sims: AtomicUsize::new(0),
             sims_expected: AtomicUsize::new(200),
             job_secs: std::sync::Mutex::new(std::collections::BTreeMap::new()),
+            last_theta: std::sync::Mutex::new(std::collections::BTreeMap::new()),
+            warm_starts: true,
         };
         e.stride = Engine::stride_of(e.n_lm(false));
         let ev = e.evaluate(base)?;
@@ -255,6 +262,11 @@ impl<'a> Engine<'a> {
         self.sig_force = ev.fit_force.as_deref().map_or(1.0, rms).max(1e-9);
         self.corr_len = corr_length(&ev.fit_pos);
         self.hold_mask = self.anomaly_mask(ev);
+    }
+
+    /// Replays of the record this engine has run.
+    pub fn replays(&self) -> usize {
+        self.sims.load(Ordering::Relaxed)
     }
 
     /// Reports progress and honours a cancel.

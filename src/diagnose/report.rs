@@ -163,6 +163,7 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
         calibration_final: out.final_ratios.clone(),
         calibration: p.cal.clone(),
         holdout_masked: eng.hold_mask.iter().filter(|k| !**k).count(),
+        replays: 0,
         units: "position residuals in um (measured - simulated); force residuals in N".into(),
         verdict,
         shrink: if cal_hold > 0.0 && !selected.is_empty() {

@@ -76,6 +76,7 @@ pub fn run(
         play_found: false,
         coulomb_first: None,
         lag_beside_first: None,
+        job: "",
     };
     let ranking = first_ranking(&ctx, effects, plan.first_round)?;
     let mut selected: Vec<(Fitted, Scores)> = Vec::new();
@@ -134,6 +135,7 @@ pub fn run(
             play_found: play_found(&selected),
             coulomb_first: coulomb_first(&ranking),
             lag_beside_first,
+            job: "",
         };
         let round = candidates::fit_all(&ctx, &rest)?.ranked;
         trace_round(selected.len(), &round);
@@ -271,6 +273,7 @@ fn growth_first(
             play_found: false,
             coulomb_first: None,
             lag_beside_first: None,
+            job: "",
         };
         candidates::fit_all(&ctx, &rest)
     };

@@ -389,6 +389,10 @@ pub struct Context<'c, 'a> {
     /// first effect selected, for a command delay's signature in later rounds (see
     /// `special::delay`); None in the first round, or when it was not read.
     pub lag_beside_first: Option<f64>,
+    /// The job of [`fit_all`] this context fits for, empty outside it: a warm start (see
+    /// [`Context::fit_lm_defs`]) is the same job's, since two jobs run side by side and a
+    /// fit one of them shares with the other would read whichever ended first.
+    pub job: &'c str,
 }
 
 impl Context<'_, '_> {
@@ -523,7 +527,59 @@ impl Context<'_, '_> {
 
     /// [`Context::fit_lm_as`] over parameters `defs` (another shape of the effect than
     /// [`Effect::params`]), from `first` (each as long as `defs`).
+    ///
+    /// In a later round a fit of one of [`WARM_EFFECTS`] starts alone from where the same
+    /// fit (the effect in the same shape) ended in the round before: beside one more effect
+    /// the optimum moves little, and each of the grid's starts costs a whole solve. A
+    /// compliance's screw spring fitted jointly with two found effects and the ratios (ten
+    /// parameters, 6–8 plant sub-steps per period) replayed the record 488 times from three
+    /// starts (the fresh seed 6969 case_073_skew at 60 s, 3.4 s of a 10 s diagnosis). A
+    /// warm start whose replays all ran away falls back to `first`.
     pub fn fit_lm_defs(
+        &self,
+        effect: Effect,
+        defs: &[crate::diagnose::effects::ParamDef],
+        first: Vec<Vec<f64>>,
+        ev: Evidence,
+        make: &(dyn Fn(&[f64]) -> Applied + Sync),
+        patience: usize,
+    ) -> Result<Option<Fitted>, DiagnoseError> {
+        let key = first.first().map(|s| {
+            format!(
+                "{}/{effect:?}/{:?}",
+                self.job,
+                std::mem::discriminant(&make(s))
+            )
+        });
+        let last = key
+            .as_ref()
+            .filter(|_| {
+                self.eng.warm_starts && !self.selected.is_empty() && WARM_EFFECTS.contains(&effect)
+            })
+            .and_then(|k| {
+                self.eng
+                    .last_theta
+                    .lock()
+                    .ok()
+                    .and_then(|m| m.get(k).cloned())
+            })
+            .filter(|t| t.len() == defs.len());
+        let warm = match last {
+            Some(t) => self.fit_lm_from(effect, defs, vec![t], ev.clone(), make, patience)?,
+            None => None,
+        };
+        let fitted = match warm {
+            Some(f) => Some(f),
+            None => self.fit_lm_from(effect, defs, first, ev, make, patience)?,
+        };
+        if let (Some(k), Some(f), Ok(mut m)) = (key, &fitted, self.eng.last_theta.lock()) {
+            m.insert(k, f.theta.clone());
+        }
+        Ok(fitted)
+    }
+
+    /// [`Context::fit_lm_defs`] from `first`, as given.
+    fn fit_lm_from(
         &self,
         effect: Effect,
         defs: &[crate::diagnose::effects::ParamDef],
@@ -921,6 +977,22 @@ impl Context<'_, '_> {
     }
 }
 
+/// The effects whose fits in a later round start where the round before left them (see
+/// [`Context::fit_lm_defs`]). Measured at stop 61 on the 304 records of seeds 6969 and 7070
+/// against the grid: with these, one more skewed mixture with both effects, no single
+/// moved, and the sum of the per-record times 42–53 % lower. A Stribeck friction started
+/// so was lost beside a Coulomb friction (6969 case_065, both ways); a screw's growth, a
+/// lead error and a play with a bias force lost three mixtures of 7070 (case_065, case_073,
+/// case_074), where the round before had fitted them to what the first effect left. A
+/// command delay's start in a later round is the lag read beside the first effect (see
+/// `special::delay`).
+const WARM_EFFECTS: [Effect; 4] = [
+    Effect::Compliance,
+    Effect::CoulombFriction,
+    Effect::StrokeFriction,
+    Effect::ViscousFriction,
+];
+
 /// The Levenberg–Marquardt solver's patience in the candidate fits (evaluations per
 /// parameter).
 const LM_PATIENCE: usize = 6;
@@ -1018,6 +1090,11 @@ pub fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Round, DiagnoseError
                     };
                     let e = effects[i];
                     let t0 = std::time::Instant::now();
+                    let job_key = label(i, job);
+                    let ctx = &Context {
+                        job: &job_key,
+                        ..*ctx
+                    };
                     let fitted = match job {
                         SpringJob::Whole => ctx.fit(e),
                         SpringJob::Payload => ctx.fit_payload(ctx.evidence(e)),
