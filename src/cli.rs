@@ -230,10 +230,6 @@ pub enum Command {
         /// Write the held-out residuals (before/after, with regimes) as CSV here.
         #[arg(long)]
         residuals: Option<PathBuf>,
-        /// Start every round's fits from the grid, not from where the round before left them
-        /// (slower; the check that the warm starts change no verdict).
-        #[arg(long)]
-        cold_starts: bool,
     },
     /// Blind check of the diagnosis: generated cases with hidden effects.
     DiagnoseEval {
@@ -404,7 +400,6 @@ pub fn run(cli: Cli) -> Result<()> {
             report,
             apply,
             residuals,
-            cold_starts,
         }) => {
             if validate.is_none() {
                 flag("--holdout", holdout, 0.05, 0.8, "of the record")?;
@@ -420,7 +415,6 @@ pub fn run(cli: Cli) -> Result<()> {
                 effects,
                 report,
                 apply,
-                cold_starts,
             })
         }
         Some(Command::DiagnoseEval {

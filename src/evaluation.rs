@@ -189,7 +189,7 @@ fn diagnose_one(p: &Prepared) -> Result<Report, DiagnoseError> {
         report: &quiet,
         cancel: &cancel,
     };
-    diagnose::select::set_trace_label(&p.name);
+
     diagnose::diagnose(&p.preset, &p.record, None, &Options::default(), &progress)
 }
 

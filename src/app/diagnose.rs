@@ -252,7 +252,7 @@ fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
     let c = &rep.calibration;
     ui.label(format!(
         "Calibration (nominal re-fitted first, within ±8 %, the mass ±11 %): {}",
-        axisbench::diagnose::report::calibration_lines(&c.ratios).join(", ")
+        axisbench::diagnose::calibrate::lines(&c.ratios).join(", ")
     ));
     if let Some(s) = &c.skew {
         ui.colored_label(
@@ -262,12 +262,6 @@ fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
                 s.channel, s.samples
             ),
         );
-    }
-    if !c.lag_reading.is_empty() {
-        ui.label(format!("Lag: {}", c.lag_reading));
-    }
-    if let Some(note) = c.refit_note() {
-        ui.label(format!("Shifts: {note}"));
     }
     ui.horizontal(|ui| {
         ui.strong(format!("Verdict: {}", rep.verdict));

@@ -18,7 +18,6 @@ pub struct Args {
     pub report: Option<PathBuf>,
     pub apply: Option<PathBuf>,
     pub residuals: Option<PathBuf>,
-    pub cold_starts: bool,
 }
 
 /// A progress line on stderr, rewritten in place (stdout stays clean for the summary).
@@ -57,7 +56,6 @@ pub fn diagnose(a: Args) -> Result<()> {
         holdout: a.holdout,
         only,
         max_effects: 3,
-        warm_starts: !a.cold_starts,
     };
     let cancel = AtomicBool::new(false);
     let report_fn = progress_line;
@@ -140,7 +138,7 @@ fn print_calibration(r: &Report) {
     say!("\nCALIBRATION (nominal parameters re-fitted first, within ±8 %, the mass ±11 %):");
     say!(
         "  {}",
-        axisbench::diagnose::report::calibration_lines(&c.ratios).join(", ")
+        axisbench::diagnose::calibrate::lines(&c.ratios).join(", ")
     );
     if !c.at_bound.is_empty() {
         let names: Vec<&str> = c.at_bound.iter().map(|p| p.name()).collect();
@@ -157,11 +155,13 @@ fn print_calibration(r: &Report) {
         ),
         None => say!("  no channel logged off its instant"),
     }
-    if !c.lag_reading.is_empty() {
-        say!("  {}", c.lag_reading);
-    }
-    if let Some(note) = c.refit_note() {
-        say!("  ({note})");
+    if let (None, Some(s), Some(j)) = (&c.skew, &c.skew_read, &c.skew_judgement) {
+        say!(
+            "  the shifts read the {:?} channel {:+.2} samples off; not taken ({})",
+            s.channel,
+            s.samples,
+            j.text()
+        );
     }
     say!(
         "  common lag of position and force behind the model: {:.2} samples ({:+.3} ms)",
@@ -332,19 +332,12 @@ pub fn bench(samples: usize) -> Result<()> {
     )?;
     let secs = t0.elapsed().as_secs_f64();
     say!(
-        "diagnose samples={} candidates={} hidden={} verdict={} readings={} passes={} seconds={:.2}",
+        "diagnose samples={} candidates={} hidden={} verdict={} replays={} seconds={:.2}",
         case.record.len(),
         rep.ranking.len(),
         case.hidden.join("+"),
         rep.verdict,
-        // Two when a one-sample lag was diagnosed both as a skew and as a lag.
-        if rep.calibration.lag_reading.is_empty() {
-            1
-        } else {
-            2
-        },
-        // Two when the shifts, fitted again beside the effects found, named another skew.
-        1 + usize::from(rep.calibration.refit.is_some()),
+        rep.replays,
         secs
     );
     Ok(())

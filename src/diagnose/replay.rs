@@ -574,6 +574,21 @@ pub struct Model {
     pub beam: Option<BeamModel>,
 }
 
+impl Model {
+    /// The quantum the model's position sensor (the one behind the record's `pos`) rounds
+    /// to, m (0: none).
+    pub fn pos_quantum_m(&self) -> f64 {
+        let a = &self.axis;
+        match self.pos_source {
+            PosSource::MotorEncoder if a.encoder.quantize_motor && a.encoder.motor_counts_per_rev > 0 => {
+                a.drive.lead_m() / f64::from(a.encoder.motor_counts_per_rev)
+            }
+            PosSource::Scale if a.encoder.quantize_scale => crate::units::um_to_m(a.encoder.scale_resolution_um),
+            _ => 0.0,
+        }
+    }
+}
+
 /// Simulated signals, sample for sample with the record.
 #[derive(Debug, Clone, Default)]
 pub struct SimOut {

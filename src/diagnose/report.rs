@@ -1,24 +1,27 @@
 //! "How far": the report of one diagnosis — the calibration and any skewed channel, the
-//! ranking with each candidate's evidence, the selected effects with their final
+//! ranking with each candidate's evidence and judgement, the named effects with their final
 //! parameters, and the held-out residual before and after, overall and per regime, bin and
 //! window.
 
 use std::collections::BTreeMap;
 
-use super::calibrate::{CalParam, Calibration};
-use super::candidates::Fitted;
-use super::engine::{Engine, Eval, Scores, peak, rms};
+use super::calibrate::Calibration;
+use super::criterion::{Part, Scale};
+use super::engine::{Engine, Eval, peak, rms};
+use super::fit::Fitted;
 use super::regimes;
 use super::replay::Record;
-use super::select::Outcome;
+use super::select::{Named, Outcome, Ranked};
 use super::{Figures, RankEntry, RegimeChange, Report, Series};
 use crate::preset::Preset;
 use crate::units::{m_to_mm, m_to_um, s_to_ms};
 
 /// What a report is built from.
-pub struct Parts {
+pub struct Parts<'a> {
     /// The calibration.
     pub cal: Calibration,
+    /// The criterion's scale.
+    pub scale: &'a Scale,
     /// The nominal's residuals.
     pub nom_eval: Eval,
     /// The calibrated model's residuals.
@@ -33,19 +36,23 @@ fn um(v: &[f64]) -> Vec<f64> {
     v.iter().map(|x| m_to_um(*x)).collect()
 }
 
-/// One ranking row: the parameters (the final ones, for a selected effect), their
-/// uncertainties, the scores and the evidence.
-fn rank_entry(first: &Fitted, s: &Scores, selected: Option<(&Fitted, &[f64])>) -> RankEntry {
-    // A selected effect is described as it was selected, which may be a later round than
-    // the first, with another shape (level steps in the first round, bursts once a hunting
-    // play's tone was averaged out): its keys, evidence and note with its final parameters.
-    let (f, theta) = selected.unwrap_or((first, &first.theta));
-    let mut params: BTreeMap<String, f64> = f
-        .keys
-        .iter()
-        .zip(theta)
-        .map(|(k, v)| (k.clone(), *v))
-        .collect();
+/// The held-out shrink of the combined residual from `before` to `after` (the one shrink
+/// figure of the report: 1 − the ratio of the two RMS levels, position and force each
+/// weighed by the calibrated model's fitting residual).
+pub fn shrink(scale: &Scale, before: &Eval, after: &Eval) -> f64 {
+    let (b, a) = (scale.level(before, Part::Held), scale.level(after, Part::Held));
+    if b > 0.0 { 1.0 - (a / b).sqrt() } else { 0.0 }
+}
+
+fn ratio_shrink(before: f64, after: f64) -> f64 {
+    if before > 0.0 { 1.0 - after / before } else { 0.0 }
+}
+
+/// One ranking row of a fitted candidate, with its final parameters and naming judgement
+/// when it was named (or dropped).
+fn rank_entry(scale: &Scale, cal_eval: &Eval, f: &Fitted, named: Option<(&Named, bool)>) -> RankEntry {
+    let theta = named.map_or(f.theta.as_slice(), |(n, _)| n.theta.as_slice());
+    let mut params: BTreeMap<String, f64> = f.keys.iter().zip(theta).map(|(k, v)| (k.clone(), *v)).collect();
     if f.effect == super::Effect::ConstantForce
         && let Some(&force) = theta.first()
     {
@@ -54,29 +61,93 @@ fn rank_entry(first: &Fitted, s: &Scores, selected: Option<(&Fitted, &[f64])>) -
         params.insert("offset_n".to_owned(), -force);
     }
     params.extend(f.extra.clone());
+    let e = &f.eval;
+    let predictable = f.part == Part::Held;
+    let judgement = named.map_or(&f.judgement, |(n, _)| &n.judgement);
+    let mut note = format!("{} variant: {}", f.variant, f.note);
+    if !predictable {
+        note += "; held-out shrink not predictable (not scored)";
+    }
+    note += &format!("; {}", judgement.text());
     RankEntry {
         effect: f.effect.name().to_owned(),
+        variant: f.variant.to_owned(),
         params,
-        params_std: f
-            .keys
-            .iter()
-            .zip(&f.std)
-            .map(|(k, v)| (k.clone(), *v))
-            .collect(),
-        fit_rms_before: m_to_um(s.fit_pos_before),
-        fit_rms_after: m_to_um(s.fit_pos_after),
-        holdout_rms_before: m_to_um(s.hold_pos_before),
-        holdout_rms_after: m_to_um(s.hold_pos_after),
-        shrink: s.shrink,
-        shrink_pos: s.shrink_pos,
-        shrink_force: s.shrink_force,
-        score: s.score,
-        significant: s.significant,
-        note: f.note.clone(),
+        params_std: f.keys.iter().zip(&f.std).map(|(k, v)| (k.clone(), *v)).collect(),
+        fit_rms_before: m_to_um(rms(&cal_eval.fit_pos)),
+        fit_rms_after: m_to_um(rms(&e.fit_pos)),
+        holdout_rms_before: m_to_um(rms(&cal_eval.hold_pos)),
+        holdout_rms_after: m_to_um(rms(&e.hold_pos)),
+        shrink: if predictable { shrink(scale, cal_eval, e) } else { 0.0 },
+        shrink_pos: ratio_shrink(rms(&cal_eval.hold_pos), rms(&e.hold_pos)),
+        shrink_force: match (&cal_eval.hold_force, &e.hold_force) {
+            (Some(b), Some(a)) => Some(ratio_shrink(rms(b), rms(a))),
+            _ => None,
+        },
+        predictable,
+        score: f.judgement.net(),
+        significant: named.is_some_and(|(_, kept)| kept),
+        judgement: Some(judgement.clone()),
+        note,
         evidence: f.evidence.text.clone(),
         evidence_pass: f.evidence.pass,
         evidence_figures: f.evidence.figures.clone(),
     }
+}
+
+/// A candidate not fitted (its signature clearly absent).
+fn skipped_entry(e: super::Effect, ev: &super::fit::Evidence) -> RankEntry {
+    RankEntry {
+        effect: e.name().to_owned(),
+        variant: String::new(),
+        params: BTreeMap::new(),
+        params_std: BTreeMap::new(),
+        fit_rms_before: 0.0,
+        fit_rms_after: 0.0,
+        holdout_rms_before: 0.0,
+        holdout_rms_after: 0.0,
+        shrink: 0.0,
+        shrink_pos: 0.0,
+        shrink_force: None,
+        predictable: true,
+        score: f64::NEG_INFINITY,
+        significant: false,
+        judgement: None,
+        note: "not fitted: its signature is clearly absent".into(),
+        evidence: ev.text.clone(),
+        evidence_pass: false,
+        evidence_figures: ev.figures.clone(),
+    }
+}
+
+/// The ranking: the named effects first (as named), then the others by their first-round
+/// net gain, then those not fitted.
+fn ranking(scale: &Scale, cal_eval: &Eval, out: &Outcome) -> Vec<RankEntry> {
+    let mut entries: Vec<RankEntry> = out
+        .named
+        .iter()
+        .map(|n| rank_entry(scale, cal_eval, &n.fitted, Some((n, true))))
+        .collect();
+    let listed = |e: super::Effect| out.named.iter().any(|n| n.fitted.effect == e);
+    let mut rest: Vec<(f64, RankEntry)> = out
+        .ranking
+        .iter()
+        .filter(|r| !listed(r.effect()))
+        .map(|r| match r {
+            Ranked::Fitted(f) => {
+                let dropped = out.dropped.iter().find(|d| d.fitted.effect == f.effect);
+                let entry = match dropped {
+                    Some(d) => rank_entry(scale, cal_eval, &d.fitted, Some((d, false))),
+                    None => rank_entry(scale, cal_eval, f, None),
+                };
+                (f.judgement.net(), entry)
+            }
+            Ranked::Skipped(e, ev) => (f64::NEG_INFINITY, skipped_entry(*e, ev)),
+        })
+        .collect();
+    rest.sort_by(|a, b| b.0.total_cmp(&a.0));
+    entries.extend(rest.into_iter().map(|(_, e)| e));
+    entries
 }
 
 /// The held-out part as a record of its own.
@@ -102,7 +173,7 @@ fn per_regime(before: &[f64], after: &[f64], labels: &[regimes::Regime]) -> Vec<
                 rms_after: ra,
                 peak_before: b.peak,
                 peak_after: pa,
-                shrink: if b.rms > 0.0 { 1.0 - ra / b.rms } else { 0.0 },
+                shrink: ratio_shrink(b.rms, ra),
             }
         })
         .collect()
@@ -119,33 +190,14 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
     let t: Vec<f64> = (0..hold_rec.len()).map(|i| hold_rec.t_s(i)).collect();
     let pos_mm: Vec<f64> = hold_rec.pos_m.iter().map(|x| m_to_mm(*x)).collect();
     let win_len = ((0.1 / hold_rec.t3_s).round() as usize).max(1);
-    let finals: BTreeMap<&str, (&Fitted, &[f64])> = out
-        .selected
-        .iter()
-        .zip(&out.final_params)
-        .map(|((f, _), th)| (f.effect.name(), (f, th.as_slice())))
-        .collect();
-    let ranking: Vec<RankEntry> = out
-        .ranking
-        .iter()
-        .map(|(f, s)| rank_entry(f, s, finals.get(f.effect.name()).copied()))
-        .collect();
-    let selected: Vec<String> = out
-        .selected
-        .iter()
-        .map(|(f, _)| f.effect.name().to_owned())
-        .collect();
+    let selected: Vec<String> = out.named.iter().map(|n| n.fitted.effect.name().to_owned()).collect();
     let verdict = selected.first().cloned().unwrap_or_else(|| "none".into());
     let (rb, ra) = (rms(&before), rms(&after));
-    let cal_hold = eng.j(&p.cal_eval.hold_pos, p.cal_eval.hold_force.as_deref());
-    let fin_hold = eng.j(
-        &out.final_eval.hold_pos,
-        out.final_eval.hold_force.as_deref(),
-    );
     let mut fitted = preset.clone();
     if let Some(a) = fitted.axes.iter_mut().find(|a| a.name == main.axis) {
         *a = out.final_cand.model.axis.clone();
     }
+    let final_values: Vec<_> = p.cal.ratios.iter().map(|(c, _)| *c).zip(out.final_values.iter().copied()).collect();
     Report {
         preset: preset.name.clone(),
         axis: main.axis.clone(),
@@ -160,19 +212,17 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
             "end of the record".into()
         },
         time_offset_ms: s_to_ms(-p.cal.common_lag_samples * main.t3_s),
-        calibration_final: out.final_ratios.clone(),
+        calibration_final: final_values,
         calibration: p.cal.clone(),
-        holdout_masked: eng.hold_mask.iter().filter(|k| !**k).count(),
+        scale: *p.scale,
+        floor_holdout: out.floors.0,
+        floor_fit: out.floors.1,
         replays: 0,
         units: "position residuals in um (measured - simulated); force residuals in N".into(),
         verdict,
-        shrink: if cal_hold > 0.0 && !selected.is_empty() {
-            1.0 - fin_hold / cal_hold
-        } else {
-            0.0
-        },
+        shrink: if selected.is_empty() { 0.0 } else { shrink(p.scale, &p.cal_eval, &out.final_eval) },
         selected,
-        ranking,
+        ranking: ranking(p.scale, &p.cal_eval, out),
         regimes: regimes::per_regime(&before, &labels),
         position_bins: regimes::per_bin(&before, &pos_mm, 10),
         base_bins: hold_rec
@@ -193,7 +243,7 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
             rms_after: ra,
             peak_before: peak(&before),
             peak_after: peak(&after),
-            shrink: if rb > 0.0 { 1.0 - ra / rb } else { 0.0 },
+            shrink: ratio_shrink(rb, ra),
         },
         per_regime: per_regime(&before, &after, &labels),
         fitted: Some(fitted),
@@ -205,12 +255,4 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
             regimes: labels,
         }),
     }
-}
-
-/// The calibration as report lines (`mass ×1.021`, …).
-pub fn calibration_lines(ratios: &[(CalParam, f64)]) -> Vec<String> {
-    ratios
-        .iter()
-        .map(|(p, r)| format!("{} ×{r:.4}", p.name()))
-        .collect()
 }

@@ -1,9 +1,56 @@
 //! The candidate effects: the plant effects of SPEC §7 a nominal preset may leave out, each
-//! with named parameters (units in the key), bounds, and how it changes the model.
+//! with named parameters (units in the key), bounds, and how it changes the model; and,
+//! one file per family, each effect's [`Candidate`]: its signature test and the variants
+//! (shapes) it is fitted in. Nothing here decides whether an effect is there: that is the
+//! criterion's (`super::criterion`).
 
+pub mod beam;
+pub mod compliance;
+pub mod delay;
+pub mod disturbance;
+pub mod friction;
+pub mod lead;
+pub mod play;
+pub mod quantization;
+pub mod thermal;
+
+use super::DiagnoseError;
+use super::fit::{Context, Evidence, Variant};
 use super::replay::Model;
 use crate::preset::Coupling;
 use serde::Serialize;
+
+/// What is specific to one effect: the test of its signature in the base's residual, and
+/// the shapes it may take. The diagnosis drives every effect through this alone.
+pub trait Candidate: Sync {
+    /// The effect.
+    fn effect(&self) -> Effect;
+    /// The signature test on the base's fitting residual: its figures, the fit's starting
+    /// values, and whether the signature is clearly absent (then the fit is skipped).
+    fn signature(&self, ctx: &Context) -> Evidence;
+    /// The variants to fit, the plain one first. Detector-shaped variants arrive fitted.
+    fn variants(&self, ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError>;
+}
+
+/// The candidate of `e`.
+pub fn candidate(e: Effect) -> &'static dyn Candidate {
+    match e {
+        Effect::CoulombFriction => &friction::Coulomb,
+        Effect::StribeckFriction => &friction::Stribeck,
+        Effect::ViscousFriction => &friction::Viscous,
+        Effect::StrokeFriction => &friction::Stroke,
+        Effect::ConstantForce => &friction::ConstantForce,
+        Effect::Backlash => &play::Backlash,
+        Effect::BacklashAsymmetry => &play::Asymmetry,
+        Effect::Compliance => &compliance::Compliance,
+        Effect::ThermalGrowth => &thermal::Growth,
+        Effect::BeamSag => &beam::Sag,
+        Effect::LeadError => &lead::Lead,
+        Effect::Quantization => &quantization::Quantization,
+        Effect::CommandDelay => &delay::Delay,
+        Effect::ExternalDisturbance => &disturbance::External,
+    }
+}
 
 /// An unmodelled plant effect the diagnosis can fit to a record and write back into the
 /// preset: the hypotheses the residual is tested against.
@@ -110,6 +157,25 @@ impl Effect {
             Effect::ExternalDisturbance => "external_disturbance",
         }
     }
+
+    /// The candidates a diagnosis tries when `--effects` names none: all but
+    /// [`Effect::BacklashAsymmetry`], which is a play and a constant force (two candidates
+    /// of this set, named as two effects); asked for by name it is fitted as one.
+    pub const DEFAULT: [Effect; 13] = [
+        Effect::CoulombFriction,
+        Effect::StribeckFriction,
+        Effect::ViscousFriction,
+        Effect::StrokeFriction,
+        Effect::Backlash,
+        Effect::ConstantForce,
+        Effect::Compliance,
+        Effect::ThermalGrowth,
+        Effect::BeamSag,
+        Effect::LeadError,
+        Effect::Quantization,
+        Effect::CommandDelay,
+        Effect::ExternalDisturbance,
+    ];
 
     /// The effect with report/command-line name `s` (inverse of [`Effect::name`]).
     pub fn from_name(s: &str) -> Option<Effect> {
@@ -232,7 +298,13 @@ impl Effect {
                 t.reference_c = t.ambient_c;
                 t.fixed_end_mm = th[2];
             }
-            Effect::BeamSag => {}
+            Effect::BeamSag => {
+                if let Some(b) = &mut m.beam
+                    && let Some(p) = b.crossbeam.posts.get_mut(b.post)
+                {
+                    p.weight_n += th[0];
+                }
+            }
             Effect::LeadError => {
                 let l = &mut a.lead_error;
                 l.enabled = true;
