@@ -146,11 +146,17 @@ impl Scale {
     }
 
     /// What `ev` leaves structured on `part` (its mean square less the noise, per channel
-    /// over the calibrated model's, averaged; none below the noise): on the fitting part of
-    /// the fullest model, the floor an effect must explain more than to be named.
+    /// over the calibrated model's, averaged), and at least the sampling error of that mean
+    /// square (√(2/n) of its level on the part's effective samples: how well the noise it
+    /// is compared with is known). On the fitting part of the fullest model: the floor an
+    /// effect must explain more than to be named.
     pub fn floor(&self, ev: &Eval, part: Part) -> f64 {
         let (pos, force) = Scale::part(ev, part);
-        self.loss(Scale::ms(pos, force, 0..pos.len()), true).max(0.0)
+        let m = Scale::ms(pos, force, 0..pos.len());
+        let tau = corr_length(pos).max(1.0);
+        let n_eff = (pos.len() as f64 / tau).max(2.0);
+        let sampling = (2.0 / n_eff).sqrt() * self.loss(m, false);
+        self.loss(m, true).max(sampling)
     }
 
     /// The whole loss of `ev` on `part`, noise included (1 on the calibrated fitting part):
@@ -238,21 +244,17 @@ pub fn judge(scale: &Scale, a: &Eval, b: &Eval, part: Part, extra_params: usize,
         (Some(x), Some(y)) => Some(diff(x, y)),
         _ => None,
     };
-    // A mean square below the channel's noise is the noise: no residual is known better.
-    let ln_ratio = |x: f64, y: f64, noise: f64| {
-        let (x, y) = (x.max(noise), y.max(noise));
-        if x > 0.0 && y > 0.0 { (x / y).ln() } else { 0.0 }
-    };
+    let ln_ratio = |x: f64, y: f64| if x > 0.0 && y > 0.0 { (x / y).ln() } else { 0.0 };
     let mut gains = Vec::new();
     let (mut informative, mut improved) = (0, 0);
     for r in bl {
         let ma = Scale::ms(pa, fa, r.clone());
         let mb = Scale::ms(pb, fb, r.clone());
         let md = Scale::ms(&d_pos, d_force.as_deref(), r);
-        let mut g = 0.5 * ln_ratio(ma.0, mb.0, scale.noise_pos);
+        let mut g = 0.5 * ln_ratio(ma.0, mb.0);
         let mut change = if ma.0 > 0.0 { md.0 / ma.0 } else { 0.0 };
         if let (Some(x), Some(y), Some(d)) = (ma.1, mb.1, md.1) {
-            g += 0.5 * ln_ratio(x, y, scale.noise_force.unwrap_or(0.0));
+            g += 0.5 * ln_ratio(x, y);
             change += if x > 0.0 { d / x } else { 0.0 };
         }
         if change > pi {

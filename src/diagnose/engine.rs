@@ -120,9 +120,19 @@ pub(crate) fn peak(x: &[f64]) -> f64 {
     x.iter().fold(0.0f64, |m, v| m.max(v.abs()))
 }
 
-/// Measured − simulated.
-fn resid(meas: &[f64], sim: &[f64]) -> Vec<f64> {
-    meas.iter().zip(sim).map(|(m, s)| m - s).collect()
+/// Measured − simulated, less `interval_m` of it either way (see [`Model::pos_interval_m`]).
+fn resid(meas: &[f64], sim: &[f64], interval_m: f64) -> Vec<f64> {
+    meas.iter()
+        .zip(sim)
+        .map(|(m, s)| {
+            let r = m - s;
+            if interval_m > 0.0 {
+                r.signum() * (r.abs() - interval_m).max(0.0)
+            } else {
+                r
+            }
+        })
+        .collect()
 }
 
 /// The residuals of candidates on one split, and the solver's rows.
@@ -231,11 +241,11 @@ impl<'a> Engine<'a> {
             main.len()
         };
         let s = simulate(&c.model, main, n_main);
-        let pos = resid(&main.pos_m[..n_main], &s.pos_m);
+        let pos = resid(&main.pos_m[..n_main], &s.pos_m, c.model.pos_interval_m);
         let force = main
             .force_n
             .as_ref()
-            .map(|f| resid(&f[..n_main], &s.force_n));
+            .map(|f| resid(&f[..n_main], &s.force_n, 0.0));
         match self.split.validate {
             None => Ok(Eval {
                 fit_pos: pos[..nf].to_vec(),
@@ -250,8 +260,8 @@ impl<'a> Engine<'a> {
                 Ok(Eval {
                     fit_pos: pos,
                     fit_force: force,
-                    hold_pos: resid(&v.pos_m, &sv.pos_m),
-                    hold_force: v.force_n.as_ref().map(|f| resid(f, &sv.force_n)),
+                    hold_pos: resid(&v.pos_m, &sv.pos_m, c.model.pos_interval_m),
+                    hold_force: v.force_n.as_ref().map(|f| resid(f, &sv.force_n, 0.0)),
                 })
             }
         }

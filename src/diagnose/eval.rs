@@ -288,6 +288,7 @@ pub fn case(seed: u64, i: usize, duration_s: f64) -> Result<Case, DiagnoseError>
         pos_source: PosSource::Scale,
         delay_s: 0.0,
         lag_s: 0.0,
+        pos_interval_m: 0.0,
         disturbance: vec![],
         beam: None,
     };

@@ -368,7 +368,7 @@ pub struct Fitted {
 }
 
 /// The solver's patience (evaluations per parameter) of a fit of the effect's parameters
-/// alone, and of the joint fit that starts where it ended.
+/// alone, and of the joint fit (see [`Context::polish`]) that starts where it ended.
 const PATIENCE_ALONE: usize = 6;
 const PATIENCE_JOINT: usize = 6;
 
@@ -433,7 +433,7 @@ impl Context<'_, '_> {
                 (chosen, fx.keys.clone(), fx.theta.clone(), vec![0.0; fx.theta.len()], fx.n_params, cand, self.values.to_vec(), vec![])
             }
             None => {
-                let Some(p) = self.fit_params(effect, v)? else {
+                let Some(p) = self.fit_params(v)? else {
                     return Ok(None);
                 };
                 let chosen = Chosen {
@@ -474,13 +474,8 @@ impl Context<'_, '_> {
         }))
     }
 
-    /// Least squares over a variant's parameters: alone on the base from each start, then
-    /// from the best of those jointly with the calibration (the values this effect does not
-    /// own) and the earlier effects' parameters. A calibration value may have leant towards
-    /// the missing effect (a velocity gain standing in for friction), which the effect alone
-    /// cannot undo.
-    fn fit_params(&self, effect: Effect, v: &Variant) -> Result<Option<ParamFit>, DiagnoseError> {
-        let n_e = v.defs.len();
+    /// Least squares over a variant's parameters alone on the base, from each start.
+    fn fit_params(&self, v: &Variant) -> Result<Option<ParamFit>, DiagnoseError> {
         let own: Vec<Param> = v
             .defs
             .iter()
@@ -504,12 +499,40 @@ impl Context<'_, '_> {
                 best = Some(f);
             }
         }
-        let Some(first) = best else {
+        let Some(f) = best else {
             return Ok(None);
         };
-        // Jointly: the free calibration values and the earlier effects' parameters.
+        let std = lm::std_devs(&f, self.per_row(v.slow));
+        Ok(Some(ParamFit {
+            cand: alone(&f.theta),
+            std,
+            theta: f.theta,
+            values: self.values.to_vec(),
+            sel_theta: chosen_params(self.chosen).0,
+        }))
+    }
+
+    /// Each row of the solver is worth this many independent samples (rows correlated over
+    /// the residual's correlation length).
+    fn per_row(&self, slow: bool) -> f64 {
+        let n_lm = self.eng.n_lm(slow);
+        1.0 / (self.sig.corr_len / Engine::stride_of(n_lm) as f64).max(1.0)
+    }
+
+    /// `f` fitted again jointly with the calibration values it does not own and the earlier
+    /// effects' parameters, from where it stands: a calibration value may have leant towards
+    /// the missing effect (a velocity gain standing in for friction), which the effect alone
+    /// cannot undo. Kept when it leaves less of the fitting part; judged again against the
+    /// base. A detector's shape stays as found.
+    pub fn polish(&self, f: Fitted) -> Result<Fitted, DiagnoseError> {
+        let (Shape::Params { set, theta }, false) = (&f.chosen.shape, f.chosen.defs.is_empty()) else {
+            return Ok(f);
+        };
+        let (set, defs) = (*set, f.chosen.defs);
+        let slow = f.effect == Effect::ThermalGrowth || self.chosen.iter().any(|c| c.effect == Effect::ThermalGrowth);
+        let n_e = defs.len();
         let free: Vec<usize> = (0..self.values.len())
-            .filter(|&i| !owns(effect, self.cal.ratios[i].0) && !self.chosen.iter().any(|c| owns(c.effect, self.cal.ratios[i].0)))
+            .filter(|&i| !owns(f.effect, self.cal.ratios[i].0) && !self.chosen.iter().any(|c| owns(c.effect, self.cal.ratios[i].0)))
             .collect();
         let (sel0, sel_params) = chosen_params(self.chosen);
         let n_r = free.len();
@@ -522,36 +545,53 @@ impl Context<'_, '_> {
         };
         let joint_cand = |th: &[f64]| {
             let mut c = rebuild(self.nominal, self.cal, &values_of(th), self.chosen, Some(&th[n_e + n_r..]));
-            (v.set)(&mut c, &th[..n_e]);
+            set(&mut c, &th[..n_e]);
             c
         };
-        let mut params = own.clone();
+        let mut params: Vec<Param> = defs
+            .iter()
+            .zip(theta)
+            .map(|(d, v)| Param {
+                lo: d.lo,
+                hi: d.hi,
+                scale: v.abs().max(d.init.abs()).max(1e-9),
+            })
+            .collect();
         params.extend(free.iter().map(|&i| self.cal.ratios[i].0.bounds()));
         params.extend(sel_params);
-        let mut start = first.theta.clone();
+        let mut start = theta.clone();
         start.extend(free.iter().map(|&i| self.values[i]));
         start.extend(sel0.iter().copied());
-        let joint_rows = |th: &[f64]| self.rows_of(&joint_cand(th), v.slow);
-        let joint = lm::fit_secant(&start, &params, &joint_rows, 0.03, PATIENCE_JOINT)?;
-        let n_lm = self.eng.n_lm(v.slow);
-        let per_row = 1.0 / (self.sig.corr_len / Engine::stride_of(n_lm) as f64).max(1.0);
-        let (fit, cand, values, sel_theta) = if joint.rows.is_some() && joint.cost <= first.cost {
-            let cand = joint_cand(&joint.theta);
-            let values = values_of(&joint.theta);
-            let sel = joint.theta[n_e + n_r..].to_vec();
-            (joint, cand, values, sel)
-        } else {
-            let cand = alone(&first.theta);
-            (first, cand, self.values.to_vec(), sel0)
-        };
-        let std = lm::std_devs(&fit, per_row);
-        Ok(Some(ParamFit {
-            theta: fit.theta[..n_e].to_vec(),
+        let rows = |th: &[f64]| self.rows_of(&joint_cand(th), slow);
+        let before = rows(&start)?.map_or(f64::INFINITY, |r| r.norm_squared());
+        let joint = lm::fit_secant(&start, &params, &rows, 0.03, PATIENCE_JOINT)?;
+        if joint.rows.is_none() || joint.cost >= before {
+            return Ok(f);
+        }
+        let cand = joint_cand(&joint.theta);
+        let eval = self.eng.evaluate(&cand)?;
+        let std = lm::std_devs(&joint, self.per_row(slow));
+        let values = values_of(&joint.theta);
+        let judgement = criterion::judge(self.scale, self.base_eval, &eval, f.part, f.n_params, 0.0);
+        let mut extra = f.extra.clone();
+        for ((p, _), r) in self.cal.ratios.iter().zip(&values) {
+            extra.insert(format!("calibration_{}", p.name()), *r);
+        }
+        Ok(Fitted {
+            theta: joint.theta[..n_e].to_vec(),
             std: std[..n_e].to_vec(),
+            chosen: Chosen {
+                shape: f.chosen.shape.with_theta(&joint.theta[..n_e]),
+                ..f.chosen.clone()
+            },
             cand,
+            eval,
             values,
-            sel_theta,
-        }))
+            sel_theta: joint.theta[n_e + n_r..].to_vec(),
+            judgement,
+            extra,
+            ..f
+        })
     }
 
     /// The solver's rows of candidate `c`; None for a model outside the fits' range (a

@@ -413,6 +413,7 @@ pub fn diagnose(
             pos_source: main.pos_source.unwrap_or(preset.diagnose.pos_source),
             delay_s: 0.0,
             lag_s: 0.0,
+            pos_interval_m: 0.0,
             disturbance: vec![],
             beam: replay::BeamModel::of(preset, &main.axis),
         },

@@ -568,6 +568,10 @@ pub struct Model {
     /// none. A drive's command filter or a smoothing stage lags like this rather than by a
     /// whole shift.
     pub lag_s: f64,
+    /// Half the interval the record's position reading stands for, m: a sensor that rounds
+    /// to a quantum q reads within ±q/2 of the position, so only what lies beyond is misfit
+    /// (0: the reading is a point).
+    pub pos_interval_m: f64,
     /// External forces on the table.
     pub disturbance: Vec<Disturbance>,
     /// The crossbeam, when the axis is a tool post's Z.

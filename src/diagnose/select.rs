@@ -121,7 +121,7 @@ pub fn run(
             base_eval: &base.eval,
             sig: &sig,
         };
-        let round = fit_all(&ctx, &rest)?;
+        let round = polish_contenders(&ctx, fit_all(&ctx, &rest)?)?;
         if std::env::var_os("AXB_DBG").is_some() {
             for r in &round {
                 if let Ranked::Fitted(f) = r {
@@ -172,8 +172,9 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
     let next = std::sync::atomic::AtomicUsize::new(0);
     let results: std::sync::Mutex<Vec<Option<Result<Ranked, DiagnoseError>>>> =
         std::sync::Mutex::new((0..effects.len()).map(|_| None).collect());
+    let threads = if std::env::var_os("AXB_SERIAL").is_some() { 1 } else { 2 };
     std::thread::scope(|s| {
-        for _ in 0..2 {
+        for _ in 0..threads {
             s.spawn(|| {
                 loop {
                     let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -181,10 +182,15 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
                         break;
                     };
                     let c = candidate(e);
+                    let before = ctx.eng.replays();
+                    let t0 = std::time::Instant::now();
                     let r = ctx.fit(c).map(|f| match f {
                         Some(f) => Ranked::Fitted(Box::new(f)),
                         None => Ranked::Skipped(e, c.signature(ctx)),
                     });
+                    if std::env::var_os("AXB_SERIAL").is_some() {
+                        eprintln!("FIT {e:?} replays {} {:.3} s", ctx.eng.replays() - before, t0.elapsed().as_secs_f64());
+                    }
                     let failed = r.is_err();
                     if let Ok(mut v) = results.lock() {
                         v[i] = Some(r);
@@ -202,6 +208,60 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
     v.into_iter()
         .flatten()
         .collect::<Result<Vec<_>, _>>()
+}
+
+/// How many of a round's fits, best first by their net gain, are fitted again jointly with
+/// the calibration (besides every one that already wins): the search's breadth, which the
+/// criterion's decisions do not depend on beyond which fits it sees.
+const CONTENDERS: usize = 3;
+
+/// The round's contenders fitted again jointly (see [`Context::polish`]): each fit that
+/// wins, and the best [`CONTENDERS`] by net gain. A joint fit replays the record far more
+/// often than a fit of the effect alone, and most candidates of a round lose by far.
+fn polish_contenders(ctx: &Context, round: Vec<Ranked>) -> Result<Vec<Ranked>, DiagnoseError> {
+    let mut order: Vec<(usize, f64)> = round
+        .iter()
+        .enumerate()
+        .filter_map(|(i, r)| match r {
+            Ranked::Fitted(f) => Some((i, f.judgement.net())),
+            Ranked::Skipped(..) => None,
+        })
+        .collect();
+    order.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let chosen: Vec<usize> = order
+        .iter()
+        .enumerate()
+        .filter(|(k, (i, _))| *k < CONTENDERS || matches!(&round[*i], Ranked::Fitted(f) if f.judgement.passes))
+        .map(|(_, (i, _))| *i)
+        .collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let polished: std::sync::Mutex<Vec<(usize, Result<Fitted, DiagnoseError>)>> = std::sync::Mutex::new(vec![]);
+    std::thread::scope(|s| {
+        for _ in 0..2 {
+            s.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(&i) = chosen.get(k) else {
+                        break;
+                    };
+                    if let Ranked::Fitted(f) = &round[i] {
+                        let r = ctx.polish(f.as_ref().clone());
+                        if let Ok(mut v) = polished.lock() {
+                            v.push((i, r));
+                        }
+                    }
+                }
+            });
+        }
+    });
+    let polished = polished
+        .into_inner()
+        .map_err(|_| DiagnoseError::Input("a joint fit panicked".into()))?;
+    let mut round = round;
+    for (i, r) in polished {
+        round[i] = Ranked::Fitted(Box::new(r?));
+    }
+    Ok(round)
 }
 
 /// `chosen` with their refittable parameters set from `sel` (in order; empty: as they are).

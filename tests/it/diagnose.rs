@@ -226,6 +226,7 @@ fn a_force_in_the_amplifiers_output_moves_the_axis_like_one_on_the_table() {
         pos_source: p.diagnose.pos_source,
         delay_s: 0.0,
         lag_s: 0.0,
+        pos_interval_m: 0.0,
         disturbance: vec![d],
         beam: None,
     };

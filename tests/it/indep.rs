@@ -777,6 +777,7 @@ fn clean_case_replays_through_the_project_model() {
             pos_source: c.preset.diagnose.pos_source,
             delay_s: 0.0,
             lag_s: 0.0,
+            pos_interval_m: 0.0,
             disturbance: vec![],
             beam: None,
         };

@@ -36,6 +36,7 @@ fn replay_residual(p: &Preset, tr: &Trace, axis: &str) -> (f64, f64, Option<usiz
         pos_source: rec.pos_source.unwrap_or(p.diagnose.pos_source),
         delay_s: 0.0,
         lag_s: 0.0,
+        pos_interval_m: 0.0,
         disturbance: vec![],
         beam: replay::BeamModel::of(p, axis),
     };

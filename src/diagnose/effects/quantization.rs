@@ -1,8 +1,8 @@
-//! Rounding of the measured position to a sensor resolution coarser than the model's.
-//! Its signature is the grid the logged positions lie on; the quantum is read off it and
-//! the model rounds its reading (and, with the same sensor in the loop, its feedback) to
-//! it. Where the model follows the axis within a count, the rounded reading lands on the
-//! record's counts and the criterion sees it.
+//! Rounding of the measured position to a sensor resolution coarser than the preset's.
+//! Its signature is the grid the logged positions lie on; the quantum q is read off it. A
+//! rounded reading says the position lies within ±q/2 of it: the model with the effect
+//! reads its position residual as that interval (only what lies beyond is misfit), which
+//! the criterion weighs like any other change of the residual.
 
 use super::{Candidate, Effect};
 use crate::diagnose::DiagnoseError;
@@ -14,6 +14,15 @@ use crate::units::m_to_um;
 
 fn set_quantum(c: &mut Cand, th: &[f64]) {
     Effect::Quantization.apply(th, &mut c.model);
+}
+
+/// The candidate's own reading of a quantum: the interval, and the preset's sensor set to it
+/// for "apply to model" (the replay reads it unrounded, see `diagnose`).
+fn set_interval(c: &mut Cand, th: &[f64]) {
+    set_quantum(c, th);
+    c.model.axis.encoder.quantize_motor = false;
+    c.model.axis.encoder.quantize_scale = false;
+    c.model.pos_interval_m = 0.5 * crate::units::um_to_m(th[0]);
 }
 
 /// The position sensor's rounding.
@@ -54,7 +63,7 @@ impl Candidate for Quantization {
             "the sensor rounds to the grid the positions lie on",
             Fixed {
                 shape: Shape::Params {
-                    set: set_quantum,
+                    set: set_interval,
                     theta: vec![q_um],
                 },
                 keys: vec!["resolution_um".into()],
