@@ -258,15 +258,14 @@ fn with_ratios(base: &Cand, ps: &[CalParam], r: &[f64], nuisance: &[f64]) -> Can
 
 /// Friction a nominal left out (a Coulomb level, a constant force) is nearly always there
 /// and would otherwise pull the mass, the viscous friction and the gains, and with them the
-/// channel shifts, off their values to mimic it. The shifts are therefore read with both
-/// fitted alongside as nuisance parameters; the calibrated model the candidates are judged
-/// against is then the nominal's parameters fitted again alone (whether the friction is
-/// there is the candidates' question, and each is fitted with the calibration free).
+/// channel shifts, off their values to mimic it. The calibration therefore fits both
+/// alongside, as nuisance parameters, and keeps only the nominal's parameters: whether the
+/// friction is there is the candidates' question.
 const N_NUISANCE: usize = 2;
 
-/// Fits the calibration parameters (from `from`, else neutral) on the engine's fitting
-/// part; with `shifts`, the two channel shifts too, and the nuisance friction beside them
-/// (see [`N_NUISANCE`]). Returns the parameters and the shifts.
+/// Fits the calibration parameters (from `from`, else neutral) and the nuisance friction
+/// (see [`N_NUISANCE`]) on the engine's fitting part; with `shifts`, the two channel shifts
+/// too. Returns the parameters and the shifts.
 fn fit_ratios(
     eng: &Engine,
     base: &Cand,
@@ -277,8 +276,8 @@ fn fit_ratios(
     let n = ps.len();
     let force_scale = (0.01 * base.model.axis.drive.total_mass_kg() * 9.81).max(1.0);
     let mut params: Vec<Param> = ps.iter().map(|p| p.bounds()).collect();
-    let n_nuisance = if shifts { N_NUISANCE } else { 0 };
-    if shifts {
+    let n_nuisance = N_NUISANCE;
+    {
         params.push(Param {
             lo: 0.0,
             hi: 1e4,
@@ -336,7 +335,11 @@ fn fit_ratios(
     } else {
         (0.0, 0.0)
     };
-    Ok((f.theta[..n].to_vec(), up, if eng.has_force { uf } else { up }))
+    Ok((
+        f.theta[..n].to_vec(),
+        up,
+        if eng.has_force { uf } else { up },
+    ))
 }
 
 /// What the two fitted shifts mean (+: the record shows the model's value that many
@@ -557,11 +560,20 @@ fn at_bound(ps: &[CalParam], values: &[f64]) -> Vec<CalParam> {
         .collect()
 }
 
-/// Re-fits the nominal's parameters alone (after a skew is removed), from `cal`'s values.
-pub fn refit(eng: &Engine, nominal: &Cand, cal: &mut Calibration) -> Result<(), DiagnoseError> {
+/// Re-fits the nominal's parameters without the channel shifts (they were read beside a
+/// common lag that is not kept): from neutral values when `fresh` (a fit from the shifted
+/// reading's values starts on its bounds, where the solver's clamped steps cannot tell
+/// which way is in), else from `cal`'s.
+pub fn refit(
+    eng: &Engine,
+    nominal: &Cand,
+    cal: &mut Calibration,
+    fresh: bool,
+) -> Result<(), DiagnoseError> {
     let ps: Vec<CalParam> = cal.ratios.iter().map(|(p, _)| *p).collect();
     let now = cal.values();
-    let (values, _, _) = fit_ratios(eng, nominal, &ps, false, Some(&now))?;
+    let from = (!fresh).then_some(now.as_slice());
+    let (values, _, _) = fit_ratios(eng, nominal, &ps, false, from)?;
     cal.at_bound = at_bound(&ps, &values);
     cal.ratios = ps.into_iter().zip(values).collect();
     Ok(())
@@ -590,7 +602,10 @@ mod tests {
         assert_eq!(s.map(|s| s.channel), Some(Channel::Cmd));
         assert_eq!(c, 0.0);
         let (s, c) = classify_shifts(-1.0, Some(0.0));
-        assert_eq!(s.map(|s| (s.channel, s.samples)), Some((Channel::Pos, -1.0)));
+        assert_eq!(
+            s.map(|s| (s.channel, s.samples)),
+            Some((Channel::Pos, -1.0))
+        );
         assert_eq!(c, 0.0);
         let (s, c) = classify_shifts(0.6, Some(-0.2));
         assert_eq!(s.map(|s| (s.channel, s.samples)), Some((Channel::Pos, 0.8)));

@@ -30,17 +30,17 @@
 
 use super::engine::{Eval, corr_length, rms};
 
-/// Contiguous blocks the scoring part is cut into. Ten: with [`MISSES`] = 1, a term whose
-/// held-out gain is noise (as likely below zero as above in each block) improves at least
-/// nine of ten blocks with probability 11/1024 ≈ 1.1 % (a binomial tail at p = ½); its
-/// held-out mean gain must also clear its penalty, and a term fitted to noise loses on
-/// held-out data on average, so a round of the 13 candidates (most skipped by their
-/// signatures) rarely passes one by chance.
+/// Contiguous blocks the scoring part is cut into. Ten: with [`MISSES`] = 2, a term whose
+/// held-out gain is noise (as likely below zero as above in each block) gains in at least
+/// eight of ten blocks with probability 56/1024 ≈ 5.5 % (a binomial tail at p = ½); its
+/// held-out mean gain must also clear its penalty, and it must explain more of the fitting
+/// part than the floor to be named, which a term fitted to noise does not.
 pub const BLOCKS: usize = 10;
 
-/// Informative blocks that may fail to improve: one, for a block where the effect is
-/// hardly excited (a compliance in a block of constant feed) and the noise decides.
-pub const MISSES: usize = 1;
+/// Informative blocks that may fail to gain: two, for blocks where the effect is hardly
+/// excited (a compliance in a block of constant feed) and the noise or another effect's
+/// misfit decides the sign.
+pub const MISSES: usize = 2;
 
 /// How many times the structured remainder of the fullest model an effect must explain to
 /// be named. One: a term that fits part of a misfit it does not describe (a spring
@@ -120,7 +120,7 @@ impl Scale {
     }
 
     /// The residual of `ev` on `part`, by channel.
-    fn part<'e>(ev: &'e Eval, part: Part) -> (&'e [f64], Option<&'e [f64]>) {
+    fn part(ev: &Eval, part: Part) -> (&[f64], Option<&[f64]>) {
         match part {
             Part::Held => (&ev.hold_pos, ev.hold_force.as_deref()),
             Part::Fit => (&ev.fit_pos, ev.fit_force.as_deref()),
@@ -225,7 +225,14 @@ impl Judgement {
 
 /// Judges B (`b`) against A (`a`), consistency scored on `part`: B adds `extra_params`
 /// parameters and must explain more than `floor` (see the module's documentation).
-pub fn judge(scale: &Scale, a: &Eval, b: &Eval, part: Part, extra_params: usize, floor: f64) -> Judgement {
+pub fn judge(
+    scale: &Scale,
+    a: &Eval,
+    b: &Eval,
+    part: Part,
+    extra_params: usize,
+    floor: f64,
+) -> Judgement {
     let (pa, fa) = Scale::part(a, part);
     let (pb, fb) = Scale::part(b, part);
     let n = pa.len().min(pb.len());
@@ -244,7 +251,13 @@ pub fn judge(scale: &Scale, a: &Eval, b: &Eval, part: Part, extra_params: usize,
         (Some(x), Some(y)) => Some(diff(x, y)),
         _ => None,
     };
-    let ln_ratio = |x: f64, y: f64| if x > 0.0 && y > 0.0 { (x / y).ln() } else { 0.0 };
+    let ln_ratio = |x: f64, y: f64| {
+        if x > 0.0 && y > 0.0 {
+            (x / y).ln()
+        } else {
+            0.0
+        }
+    };
     let mut gains = Vec::new();
     let (mut informative, mut improved) = (0, 0);
     for r in bl {
@@ -310,7 +323,9 @@ mod tests {
         let mut gauss = || {
             // Box–Muller from a small LCG: deterministic.
             let mut u = || {
-                x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
             };
             let (a, b) = (u(), u());
@@ -327,7 +342,11 @@ mod tests {
     /// what it explains; against a floor larger than its gain it does not.
     #[test]
     fn a_consistent_gain_wins_unless_the_floor_is_larger() {
-        let base = eval((0..2000).map(|k| if k % 2 == 0 { 1.0 } else { -1.0 }).collect());
+        let base = eval(
+            (0..2000)
+                .map(|k| if k % 2 == 0 { 1.0 } else { -1.0 })
+                .collect(),
+        );
         let half = eval(base.hold_pos.iter().map(|v| 0.5 * v).collect());
         let scale = Scale::new(&base, 1.0, 0.0);
         let j = judge(&scale, &base, &half, Part::Held, 1, 0.0);
@@ -335,8 +354,8 @@ mod tests {
         assert_eq!(j.improved, BLOCKS);
         // ½·ln(1/0.25) per sample.
         assert!((j.gain - 0.5 * 4f64.ln()).abs() < 1e-9, "{}", j.gain);
-        // Three quarters of the fitting part's mean square, less a small penalty.
-        assert!(j.explained > 0.7 && j.explained < 0.75, "{}", j.explained);
+        // Three quarters of the fitting part's mean square.
+        assert!((j.explained - 0.75).abs() < 1e-9, "{}", j.explained);
         assert!(judge(&scale, &base, &half, Part::Held, 1, 0.5).passes);
         assert!(!judge(&scale, &base, &half, Part::Held, 1, 0.8).passes);
     }
@@ -345,8 +364,13 @@ mod tests {
     /// however large its mean gain.
     #[test]
     fn a_gain_in_some_blocks_only_is_not_consistent() {
-        let base = eval(vec![1.0; 2000]);
-        let mixed = eval((0..2000).map(|k| if k < 1000 { 0.1 } else { 1.2 }).collect());
+        let sign = |k: usize| if k % 2 == 0 { 1.0 } else { -1.0 };
+        let base = eval((0..2000).map(sign).collect());
+        let mixed = eval(
+            (0..2000)
+                .map(|k| sign(k) * if k < 1000 { 0.1 } else { 1.2 })
+                .collect(),
+        );
         let scale = Scale::new(&base, 1.0, 0.0);
         let j = judge(&scale, &base, &mixed, Part::Held, 1, 0.0);
         assert!(j.gain > 0.0, "{j:?}");
@@ -357,8 +381,13 @@ mod tests {
     /// judged on those two.
     #[test]
     fn blocks_the_term_does_not_touch_are_not_counted() {
-        let base = eval(vec![1.0; 2000]);
-        let local = eval((0..2000).map(|k| if k < 400 { 0.1 } else { 1.0 }).collect());
+        let sign = |k: usize| if k % 2 == 0 { 1.0 } else { -1.0 };
+        let base = eval((0..2000).map(sign).collect());
+        let local = eval(
+            (0..2000)
+                .map(|k| sign(k) * if k < 400 { 0.1 } else { 1.0 })
+                .collect(),
+        );
         let scale = Scale::new(&base, 1.0, 0.0);
         let j = judge(&scale, &base, &local, Part::Held, 1, 0.0);
         assert_eq!(j.informative, 2, "{j:?}");

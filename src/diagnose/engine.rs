@@ -286,7 +286,11 @@ impl<'a> Engine<'a> {
             if shift == 0.0 && st == 1 {
                 v.extend(rec.iter().zip(sim).map(|(r, s)| (r - s) / sig / root));
             } else if shift == 0.0 {
-                v.extend((0..sim.len()).step_by(st).map(|k| (rec[k] - sim[k]) / sig / root));
+                v.extend(
+                    (0..sim.len())
+                        .step_by(st)
+                        .map(|k| (rec[k] - sim[k]) / sig / root),
+                );
             } else {
                 v.extend(
                     (0..sim.len())

@@ -214,7 +214,13 @@ pub struct Variant {
 
 impl Variant {
     /// A parametric variant scored on the held-out part.
-    pub fn params(name: &'static str, note: impl Into<String>, defs: &'static [ParamDef], set: SetFn, starts: Vec<Vec<f64>>) -> Variant {
+    pub fn params(
+        name: &'static str,
+        note: impl Into<String>,
+        defs: &'static [ParamDef],
+        set: SetFn,
+        starts: Vec<Vec<f64>>,
+    ) -> Variant {
         Variant {
             name,
             note: note.into(),
@@ -265,7 +271,13 @@ impl Chosen {
 
 /// The nominal with calibration values `values` and the chosen effects, those with
 /// parameters at `sel` (their refittable parameters in order; None: as they are).
-pub fn rebuild(nominal: &Cand, cal: &Calibration, values: &[f64], chosen: &[Chosen], sel: Option<&[f64]>) -> Cand {
+pub fn rebuild(
+    nominal: &Cand,
+    cal: &Calibration,
+    values: &[f64],
+    chosen: &[Chosen],
+    sel: Option<&[f64]>,
+) -> Cand {
     let mut c = nominal.clone();
     for ((p, _), v) in cal.ratios.iter().zip(values) {
         p.apply(&mut c.model.axis, *v);
@@ -377,8 +389,10 @@ const PATIENCE_JOINT: usize = 6;
 fn owns(e: Effect, p: CalParam) -> bool {
     matches!(
         (e, p),
-        (Effect::CoulombFriction, CalParam::Coulomb | CalParam::Smoothing)
-            | (Effect::ViscousFriction, CalParam::Viscous)
+        (
+            Effect::CoulombFriction,
+            CalParam::Coulomb | CalParam::Smoothing
+        ) | (Effect::ViscousFriction, CalParam::Viscous)
     )
 }
 
@@ -407,7 +421,12 @@ impl Context<'_, '_> {
                     let j = criterion::judge(self.scale, &b.eval, &f.eval, part, dp, 0.0);
                     if j.passes {
                         Fitted {
-                            note: format!("{} (it won over the {} shape: {})", f.note, b.variant, j.text()),
+                            note: format!(
+                                "{} (it won over the {} shape: {})",
+                                f.note,
+                                b.variant,
+                                j.text()
+                            ),
                             ..f
                         }
                     } else {
@@ -420,7 +439,12 @@ impl Context<'_, '_> {
     }
 
     /// One variant fitted (or a detector's shape added) and judged against the base.
-    fn fit_variant(&self, effect: Effect, v: &Variant, ev: &Evidence) -> Result<Option<Fitted>, DiagnoseError> {
+    fn fit_variant(
+        &self,
+        effect: Effect,
+        v: &Variant,
+        ev: &Evidence,
+    ) -> Result<Option<Fitted>, DiagnoseError> {
         let (chosen, keys, theta, std, n_params, cand, values, sel_theta) = match &v.fixed {
             Some(fx) => {
                 let mut cand = self.base.clone();
@@ -430,7 +454,16 @@ impl Context<'_, '_> {
                     shape: fx.shape.clone(),
                     defs: &[],
                 };
-                (chosen, fx.keys.clone(), fx.theta.clone(), vec![0.0; fx.theta.len()], fx.n_params, cand, self.values.to_vec(), vec![])
+                (
+                    chosen,
+                    fx.keys.clone(),
+                    fx.theta.clone(),
+                    vec![0.0; fx.theta.len()],
+                    fx.n_params,
+                    cand,
+                    self.values.to_vec(),
+                    vec![],
+                )
             }
             None => {
                 let Some(p) = self.fit_params(v)? else {
@@ -445,7 +478,16 @@ impl Context<'_, '_> {
                     defs: v.defs,
                 };
                 let keys = v.defs.iter().map(|d| d.key.to_owned()).collect();
-                (chosen, keys, p.theta, p.std, v.defs.len(), p.cand, p.values, p.sel_theta)
+                (
+                    chosen,
+                    keys,
+                    p.theta,
+                    p.std,
+                    v.defs.len(),
+                    p.cand,
+                    p.values,
+                    p.sel_theta,
+                )
             }
         };
         let eval = self.eng.evaluate(&cand)?;
@@ -493,7 +535,11 @@ impl Context<'_, '_> {
         let rows = |th: &[f64]| self.rows_of(&alone(th), v.slow);
         let mut best: Option<lm::LmFit> = None;
         for s in &v.starts {
-            let s: Vec<f64> = s.iter().zip(v.defs).map(|(x, d)| x.clamp(d.lo, d.hi)).collect();
+            let s: Vec<f64> = s
+                .iter()
+                .zip(v.defs)
+                .map(|(x, d)| x.clamp(d.lo, d.hi))
+                .collect();
             let f = lm::fit(&s, &own, &rows, 0.03, PATIENCE_ALONE)?;
             if f.rows.is_some() && best.as_ref().is_none_or(|b| f.cost < b.cost) {
                 best = Some(f);
@@ -525,14 +571,25 @@ impl Context<'_, '_> {
     /// cannot undo. Kept when it leaves less of the fitting part; judged again against the
     /// base. A detector's shape stays as found.
     pub fn polish(&self, f: Fitted) -> Result<Fitted, DiagnoseError> {
-        let (Shape::Params { set, theta }, false) = (&f.chosen.shape, f.chosen.defs.is_empty()) else {
+        let (Shape::Params { set, theta }, false) = (&f.chosen.shape, f.chosen.defs.is_empty())
+        else {
             return Ok(f);
         };
         let (set, defs) = (*set, f.chosen.defs);
-        let slow = f.effect == Effect::ThermalGrowth || self.chosen.iter().any(|c| c.effect == Effect::ThermalGrowth);
+        let slow = f.effect == Effect::ThermalGrowth
+            || self
+                .chosen
+                .iter()
+                .any(|c| c.effect == Effect::ThermalGrowth);
         let n_e = defs.len();
         let free: Vec<usize> = (0..self.values.len())
-            .filter(|&i| !owns(f.effect, self.cal.ratios[i].0) && !self.chosen.iter().any(|c| owns(c.effect, self.cal.ratios[i].0)))
+            .filter(|&i| {
+                !owns(f.effect, self.cal.ratios[i].0)
+                    && !self
+                        .chosen
+                        .iter()
+                        .any(|c| owns(c.effect, self.cal.ratios[i].0))
+            })
             .collect();
         let (sel0, sel_params) = chosen_params(self.chosen);
         let n_r = free.len();
@@ -544,7 +601,13 @@ impl Context<'_, '_> {
             r
         };
         let joint_cand = |th: &[f64]| {
-            let mut c = rebuild(self.nominal, self.cal, &values_of(th), self.chosen, Some(&th[n_e + n_r..]));
+            let mut c = rebuild(
+                self.nominal,
+                self.cal,
+                &values_of(th),
+                self.chosen,
+                Some(&th[n_e + n_r..]),
+            );
             set(&mut c, &th[..n_e]);
             c
         };
@@ -572,7 +635,8 @@ impl Context<'_, '_> {
         let eval = self.eng.evaluate(&cand)?;
         let std = lm::std_devs(&joint, self.per_row(slow));
         let values = values_of(&joint.theta);
-        let judgement = criterion::judge(self.scale, self.base_eval, &eval, f.part, f.n_params, 0.0);
+        let judgement =
+            criterion::judge(self.scale, self.base_eval, &eval, f.part, f.n_params, 0.0);
         let mut extra = f.extra.clone();
         for ((p, _), r) in self.cal.ratios.iter().zip(&values) {
             extra.insert(format!("calibration_{}", p.name()), *r);
@@ -597,8 +661,14 @@ impl Context<'_, '_> {
     /// The solver's rows of candidate `c`; None for a model outside the fits' range (a
     /// spring the base has not, damped beyond critical or ringing above the Nyquist
     /// frequency), as for a replay that diverges.
-    fn rows_of(&self, c: &Cand, slow: bool) -> Result<Option<nalgebra::DVector<f64>>, DiagnoseError> {
-        if super::effects::compliance::outside_spring(c) && !super::effects::compliance::outside_spring(self.base) {
+    fn rows_of(
+        &self,
+        c: &Cand,
+        slow: bool,
+    ) -> Result<Option<nalgebra::DVector<f64>>, DiagnoseError> {
+        if super::effects::compliance::outside_spring(c)
+            && !super::effects::compliance::outside_spring(self.base)
+        {
             return Ok(None);
         }
         Ok(Some(self.eng.lm_rows(&self.eng.sim_fit(c, slow)?)))

@@ -442,7 +442,10 @@ pub fn diagnose(
     // A skew the criterion took is removed from the record; the rest of the diagnosis reads
     // the realigned record (one reading).
     let (main_d, val_d) = match &cal.skew {
-        Some(s) => (calibrate::deskew(main, s), validate.map(|v| calibrate::deskew(v, s))),
+        Some(s) => (
+            calibrate::deskew(main, s),
+            validate.map(|v| calibrate::deskew(v, s)),
+        ),
         None => (main.clone(), validate.cloned()),
     };
     let (mut eng, _) = engine::Engine::new(
@@ -450,19 +453,21 @@ pub fn diagnose(
         &cal.apply(&nominal),
         progress,
     )?;
-    if cal.skew.is_some() {
-        calibrate::refit(&eng, &nominal, &mut cal)?;
-    }
-    // Once more with the calibrated residual's weights of position and force, the weights
-    // every candidate is fitted with.
+    // The nominal's parameters fitted again without the shifts (the common lag is not
+    // kept; a skew taken is gone from the record), then once more with the calibrated
+    // residual's weights of position and force, the weights every candidate is fitted with.
+    calibrate::refit(&eng, &nominal, &mut cal, true)?;
     eng.set_scale(&eng.evaluate(&cal.apply(&nominal))?);
-    calibrate::refit(&eng, &nominal, &mut cal)?;
+    calibrate::refit(&eng, &nominal, &mut cal, false)?;
     let calibrated = cal.apply(&nominal);
     let cal_eval = eng.evaluate(&calibrated)?;
     eng.set_scale(&cal_eval);
     let scale = criterion::Scale::new(&cal_eval, eng.corr_len, sensor_quantum_m);
     if std::env::var_os("AXB_DBG").is_some() {
-        eprintln!("CAL {:?} shifts {:.3} {:.3} skew {:?} scale {:?}", cal.ratios, cal.pos_shift_samples, cal.force_shift_samples, cal.skew, scale);
+        eprintln!(
+            "CAL {:?} shifts {:.3} {:.3} skew {:?} scale {:?}",
+            cal.ratios, cal.pos_shift_samples, cal.force_shift_samples, cal.skew, scale
+        );
     }
     cal.level_nominal = scale.level(&eng.evaluate(&nominal)?, criterion::Part::Held);
     cal.level_calibrated = scale.level(&cal_eval, criterion::Part::Held);

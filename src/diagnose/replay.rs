@@ -584,10 +584,14 @@ impl Model {
     pub fn pos_quantum_m(&self) -> f64 {
         let a = &self.axis;
         match self.pos_source {
-            PosSource::MotorEncoder if a.encoder.quantize_motor && a.encoder.motor_counts_per_rev > 0 => {
+            PosSource::MotorEncoder
+                if a.encoder.quantize_motor && a.encoder.motor_counts_per_rev > 0 =>
+            {
                 a.drive.lead_m() / f64::from(a.encoder.motor_counts_per_rev)
             }
-            PosSource::Scale if a.encoder.quantize_scale => crate::units::um_to_m(a.encoder.scale_resolution_um),
+            PosSource::Scale if a.encoder.quantize_scale => {
+                crate::units::um_to_m(a.encoder.scale_resolution_um)
+            }
             _ => 0.0,
         }
     }

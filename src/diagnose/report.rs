@@ -40,19 +40,36 @@ fn um(v: &[f64]) -> Vec<f64> {
 /// figure of the report: 1 − the ratio of the two RMS levels, position and force each
 /// weighed by the calibrated model's fitting residual).
 pub fn shrink(scale: &Scale, before: &Eval, after: &Eval) -> f64 {
-    let (b, a) = (scale.level(before, Part::Held), scale.level(after, Part::Held));
+    let (b, a) = (
+        scale.level(before, Part::Held),
+        scale.level(after, Part::Held),
+    );
     if b > 0.0 { 1.0 - (a / b).sqrt() } else { 0.0 }
 }
 
 fn ratio_shrink(before: f64, after: f64) -> f64 {
-    if before > 0.0 { 1.0 - after / before } else { 0.0 }
+    if before > 0.0 {
+        1.0 - after / before
+    } else {
+        0.0
+    }
 }
 
 /// One ranking row of a fitted candidate, with its final parameters and naming judgement
 /// when it was named (or dropped).
-fn rank_entry(scale: &Scale, cal_eval: &Eval, f: &Fitted, named: Option<(&Named, bool)>) -> RankEntry {
+fn rank_entry(
+    scale: &Scale,
+    cal_eval: &Eval,
+    f: &Fitted,
+    named: Option<(&Named, bool)>,
+) -> RankEntry {
     let theta = named.map_or(f.theta.as_slice(), |(n, _)| n.theta.as_slice());
-    let mut params: BTreeMap<String, f64> = f.keys.iter().zip(theta).map(|(k, v)| (k.clone(), *v)).collect();
+    let mut params: BTreeMap<String, f64> = f
+        .keys
+        .iter()
+        .zip(theta)
+        .map(|(k, v)| (k.clone(), *v))
+        .collect();
     if f.effect == super::Effect::ConstantForce
         && let Some(&force) = theta.first()
     {
@@ -73,12 +90,21 @@ fn rank_entry(scale: &Scale, cal_eval: &Eval, f: &Fitted, named: Option<(&Named,
         effect: f.effect.name().to_owned(),
         variant: f.variant.to_owned(),
         params,
-        params_std: f.keys.iter().zip(&f.std).map(|(k, v)| (k.clone(), *v)).collect(),
+        params_std: f
+            .keys
+            .iter()
+            .zip(&f.std)
+            .map(|(k, v)| (k.clone(), *v))
+            .collect(),
         fit_rms_before: m_to_um(rms(&cal_eval.fit_pos)),
         fit_rms_after: m_to_um(rms(&e.fit_pos)),
         holdout_rms_before: m_to_um(rms(&cal_eval.hold_pos)),
         holdout_rms_after: m_to_um(rms(&e.hold_pos)),
-        shrink: if predictable { shrink(scale, cal_eval, e) } else { 0.0 },
+        shrink: if predictable {
+            shrink(scale, cal_eval, e)
+        } else {
+            0.0
+        },
         shrink_pos: ratio_shrink(rms(&cal_eval.hold_pos), rms(&e.hold_pos)),
         shrink_force: match (&cal_eval.hold_force, &e.hold_force) {
             (Some(b), Some(a)) => Some(ratio_shrink(rms(b), rms(a))),
@@ -190,14 +216,24 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
     let t: Vec<f64> = (0..hold_rec.len()).map(|i| hold_rec.t_s(i)).collect();
     let pos_mm: Vec<f64> = hold_rec.pos_m.iter().map(|x| m_to_mm(*x)).collect();
     let win_len = ((0.1 / hold_rec.t3_s).round() as usize).max(1);
-    let selected: Vec<String> = out.named.iter().map(|n| n.fitted.effect.name().to_owned()).collect();
+    let selected: Vec<String> = out
+        .named
+        .iter()
+        .map(|n| n.fitted.effect.name().to_owned())
+        .collect();
     let verdict = selected.first().cloned().unwrap_or_else(|| "none".into());
     let (rb, ra) = (rms(&before), rms(&after));
     let mut fitted = preset.clone();
     if let Some(a) = fitted.axes.iter_mut().find(|a| a.name == main.axis) {
         *a = out.final_cand.model.axis.clone();
     }
-    let final_values: Vec<_> = p.cal.ratios.iter().map(|(c, _)| *c).zip(out.final_values.iter().copied()).collect();
+    let final_values: Vec<_> = p
+        .cal
+        .ratios
+        .iter()
+        .map(|(c, _)| *c)
+        .zip(out.final_values.iter().copied())
+        .collect();
     Report {
         preset: preset.name.clone(),
         axis: main.axis.clone(),
@@ -220,7 +256,11 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
         replays: 0,
         units: "position residuals in um (measured - simulated); force residuals in N".into(),
         verdict,
-        shrink: if selected.is_empty() { 0.0 } else { shrink(p.scale, &p.cal_eval, &out.final_eval) },
+        shrink: if selected.is_empty() {
+            0.0
+        } else {
+            shrink(p.scale, &p.cal_eval, &out.final_eval)
+        },
         selected,
         ranking: ranking(p.scale, &p.cal_eval, out),
         regimes: regimes::per_regime(&before, &labels),

@@ -125,18 +125,30 @@ pub fn run(
         if std::env::var_os("AXB_DBG").is_some() {
             for r in &round {
                 if let Ranked::Fitted(f) = r {
-                    eprintln!("ROUND{} {:?}/{} {}: {}", picks.len(), f.effect, f.variant, f.judgement.passes, f.judgement.text());
+                    eprintln!(
+                        "ROUND{} {:?}/{} {}: {}",
+                        picks.len(),
+                        f.effect,
+                        f.variant,
+                        f.judgement.passes,
+                        f.judgement.text()
+                    );
                 }
             }
         }
-        let best = round
-            .iter()
-            .filter_map(|r| match r {
-                Ranked::Fitted(f) if f.judgement.passes => Some(f.as_ref()),
-                _ => None,
-            })
-            .max_by(|a, b| a.judgement.net().total_cmp(&b.judgement.net()))
-            .cloned();
+        // A force at times no state predicts is the residual category: it is judged on the
+        // part it was shaped on, where its gain is not comparable with a held-out one, and
+        // any state or time law that wins comes first.
+        let best = [Part::Held, Part::Fit].into_iter().find_map(|part| {
+            round
+                .iter()
+                .filter_map(|r| match r {
+                    Ranked::Fitted(f) if f.judgement.passes && f.part == part => Some(f.as_ref()),
+                    _ => None,
+                })
+                .max_by(|a, b| a.judgement.net().total_cmp(&b.judgement.net()))
+                .cloned()
+        });
         if ranking.is_none() {
             ranking = Some(round);
         }
@@ -159,7 +171,10 @@ pub fn run(
             final_cand: calibrated.clone(),
             final_eval: cal_eval.clone(),
             final_values: cal.values(),
-            floors: (scale.floor(cal_eval, Part::Held), scale.floor(cal_eval, Part::Fit)),
+            floors: (
+                scale.floor(cal_eval, Part::Held),
+                scale.floor(cal_eval, Part::Fit),
+            ),
         });
     }
     let slow = picks.iter().any(|p| p.effect == Effect::ThermalGrowth);
@@ -172,7 +187,11 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
     let next = std::sync::atomic::AtomicUsize::new(0);
     let results: std::sync::Mutex<Vec<Option<Result<Ranked, DiagnoseError>>>> =
         std::sync::Mutex::new((0..effects.len()).map(|_| None).collect());
-    let threads = if std::env::var_os("AXB_SERIAL").is_some() { 1 } else { 2 };
+    let threads = if std::env::var_os("AXB_SERIAL").is_some() {
+        1
+    } else {
+        2
+    };
     std::thread::scope(|s| {
         for _ in 0..threads {
             s.spawn(|| {
@@ -189,7 +208,11 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
                         None => Ranked::Skipped(e, c.signature(ctx)),
                     });
                     if std::env::var_os("AXB_SERIAL").is_some() {
-                        eprintln!("FIT {e:?} replays {} {:.3} s", ctx.eng.replays() - before, t0.elapsed().as_secs_f64());
+                        eprintln!(
+                            "FIT {e:?} replays {} {:.3} s",
+                            ctx.eng.replays() - before,
+                            t0.elapsed().as_secs_f64()
+                        );
                     }
                     let failed = r.is_err();
                     if let Ok(mut v) = results.lock() {
@@ -205,9 +228,7 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
     let v = results
         .into_inner()
         .map_err(|_| DiagnoseError::Input("a candidate fit panicked".into()))?;
-    v.into_iter()
-        .flatten()
-        .collect::<Result<Vec<_>, _>>()
+    v.into_iter().flatten().collect::<Result<Vec<_>, _>>()
 }
 
 /// How many of a round's fits, best first by their net gain, are fitted again jointly with
@@ -231,11 +252,14 @@ fn polish_contenders(ctx: &Context, round: Vec<Ranked>) -> Result<Vec<Ranked>, D
     let chosen: Vec<usize> = order
         .iter()
         .enumerate()
-        .filter(|(k, (i, _))| *k < CONTENDERS || matches!(&round[*i], Ranked::Fitted(f) if f.judgement.passes))
+        .filter(|(k, (i, _))| {
+            *k < CONTENDERS || matches!(&round[*i], Ranked::Fitted(f) if f.judgement.passes)
+        })
         .map(|(_, (i, _))| *i)
         .collect();
     let next = std::sync::atomic::AtomicUsize::new(0);
-    let polished: std::sync::Mutex<Vec<(usize, Result<Fitted, DiagnoseError>)>> = std::sync::Mutex::new(vec![]);
+    let polished: std::sync::Mutex<Vec<(usize, Result<Fitted, DiagnoseError>)>> =
+        std::sync::Mutex::new(vec![]);
     std::thread::scope(|s| {
         for _ in 0..2 {
             s.spawn(|| {
@@ -288,18 +312,28 @@ fn with_params(chosen: &[Chosen], sel: &[f64]) -> Vec<Chosen> {
 /// The selected effects and the calibration values they do not own, fitted together from
 /// where the selection left them: an effect found first keeps only what the next one does
 /// not explain better.
-fn joint_refit(eng: &Engine, cal: &Calibration, nominal: &Cand, base: Base, slow: bool) -> Result<Base, DiagnoseError> {
+fn joint_refit(
+    eng: &Engine,
+    cal: &Calibration,
+    nominal: &Cand,
+    base: Base,
+    slow: bool,
+) -> Result<Base, DiagnoseError> {
     let (sel0, sel_params) = chosen_params(&base.chosen);
     let owned = |p| {
         base.chosen.iter().any(|c| {
             matches!(
                 (c.effect, p),
-                (Effect::CoulombFriction, super::calibrate::CalParam::Coulomb | super::calibrate::CalParam::Smoothing)
-                    | (Effect::ViscousFriction, super::calibrate::CalParam::Viscous)
+                (
+                    Effect::CoulombFriction,
+                    super::calibrate::CalParam::Coulomb | super::calibrate::CalParam::Smoothing
+                ) | (Effect::ViscousFriction, super::calibrate::CalParam::Viscous)
             )
         })
     };
-    let free: Vec<usize> = (0..base.values.len()).filter(|&i| !owned(cal.ratios[i].0)).collect();
+    let free: Vec<usize> = (0..base.values.len())
+        .filter(|&i| !owned(cal.ratios[i].0))
+        .collect();
     let values_of = |th: &[f64]| {
         let mut v = base.values.clone();
         for (j, &i) in free.iter().enumerate() {
@@ -350,9 +384,16 @@ fn name(
 ) -> Result<Outcome, DiagnoseError> {
     let mut dropped: Vec<Named> = vec![];
     loop {
-        let floors = (scale.floor(&base.eval, Part::Held), scale.floor(&base.eval, Part::Fit));
+        let floors = (
+            scale.floor(&base.eval, Part::Held),
+            scale.floor(&base.eval, Part::Fit),
+        );
         if std::env::var_os("AXB_DBG").is_some() {
-            eprintln!("NAME floors {floors:?} picks {:?} values {:?}", picks.iter().map(|p| p.effect).collect::<Vec<_>>(), base.values);
+            eprintln!(
+                "NAME floors {floors:?} picks {:?} values {:?}",
+                picks.iter().map(|p| p.effect).collect::<Vec<_>>(),
+                base.values
+            );
         }
         let mut judged = vec![];
         for (i, p) in picks.iter().enumerate() {
@@ -363,20 +404,8 @@ fn name(
                 .filter(|(k, _)| *k != i)
                 .map(|(_, c)| c.clone())
                 .collect();
-            // Without it, the calibration and the other effects fitted again: what they can
-            // take of it is not the effect's.
-            let partial = Base {
-                cand: rebuild(nominal, cal, &base.values, &rest, None),
-                chosen: rest,
-                values: base.values.clone(),
-                eval: Eval::default(),
-            };
-            let slow = picks.iter().enumerate().any(|(k, q)| k != i && q.effect == Effect::ThermalGrowth);
-            let partial = Base {
-                eval: eng.evaluate(&partial.cand)?,
-                ..partial
-            };
-            let without = joint_refit(eng, cal, nominal, partial, slow)?.eval;
+            // Without it, the rest of the final model as it stands.
+            let without = eng.evaluate(&rebuild(nominal, cal, &base.values, &rest, None))?;
             let j = criterion::judge(scale, &without, &base.eval, p.part, p.n_params, floors.1);
             if std::env::var_os("AXB_DBG").is_some() {
                 eprintln!("NAMING {:?}: {} {}", p.effect, j.passes, j.text());

@@ -19,7 +19,10 @@ impl Candidate for Sag {
 
     fn signature(&self, ctx: &Context) -> Evidence {
         if ctx.base.model.beam.is_some() && !ctx.eng.split.main.beam_x_m.is_empty() {
-            Evidence::found(true, "the axis hangs from a crossbeam whose posts' positions are recorded")
+            Evidence::found(
+                true,
+                "the axis hangs from a crossbeam whose posts' positions are recorded",
+            )
         } else {
             Evidence::absent("no crossbeam posts recorded for this axis")
         }

@@ -21,8 +21,10 @@ const MAX_SPRING_DAMPING_RATIO: f64 = 1.0;
 pub fn outside_spring(c: &Cand) -> bool {
     let a = &c.model.axis;
     let nyquist_rad_per_s = std::f64::consts::PI / c.model.t3_s;
-    a.coupling_damping_ratio().is_some_and(|z| z > MAX_SPRING_DAMPING_RATIO)
-        || a.coupling_resonance_rad_per_s().is_some_and(|w| w > nyquist_rad_per_s)
+    a.coupling_damping_ratio()
+        .is_some_and(|z| z > MAX_SPRING_DAMPING_RATIO)
+        || a.coupling_resonance_rad_per_s()
+            .is_some_and(|w| w > nyquist_rad_per_s)
 }
 
 /// Window after a commanded acceleration step in which a compliant payload's dip and
@@ -53,7 +55,10 @@ fn signature(ctx: &Context) -> Evidence {
         let c = 2.0 * r.damping_ratio.max(0.1) * w * m_red;
         return Evidence::found(
             true,
-            format!("the residual resonates at {:.1} Hz, {:.0}× its band's median", r.freq_hz, r.peak_ratio),
+            format!(
+                "the residual resonates at {:.1} Hz, {:.0}× its band's median",
+                r.freq_hz, r.peak_ratio
+            ),
         )
         .with("frequency_hz", r.freq_hz)
         .with("peak_ratio", r.peak_ratio)
@@ -94,7 +99,9 @@ fn signature(ctx: &Context) -> Evidence {
         .with("loop_peak_hz", r.freq_hz)
         .with("loop_peak_ratio", r.peak_ratio);
     }
-    Evidence::absent("no resonance, no ringing after the acceleration steps and no peak in the position loop's band")
+    Evidence::absent(
+        "no resonance, no ringing after the acceleration steps and no peak in the position loop's band",
+    )
 }
 
 fn set_payload(c: &mut Cand, th: &[f64]) {
@@ -137,7 +144,14 @@ const HARDENING_DEFS: [ParamDef; 4] = [
 /// then the deflection d₀ µm at which the force has doubled).
 fn set_hardening(c: &mut Cand, th: &[f64]) {
     Effect::Compliance.apply(&th[..3], &mut c.model);
-    if let (Coupling::Payload { hardening_deflection_um, .. }, Some(d0)) = (&mut c.model.axis.drive.coupling, th.get(3)) {
+    if let (
+        Coupling::Payload {
+            hardening_deflection_um,
+            ..
+        },
+        Some(d0),
+    ) = (&mut c.model.axis.drive.coupling, th.get(3))
+    {
         *hardening_deflection_um = *d0;
     }
 }
@@ -155,7 +169,11 @@ impl Candidate for Compliance {
     }
 
     fn variants(&self, ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
-        let mut starts = vec![vec![2.0, 1500.0, 0.3], vec![10.0, 4000.0, 0.3], vec![50.0, 10000.0, 0.3]];
+        let mut starts = vec![
+            vec![2.0, 1500.0, 0.3],
+            vec![10.0, 4000.0, 0.3],
+            vec![50.0, 10000.0, 0.3],
+        ];
         if ev.hint.len() == 3 {
             starts.insert(0, ev.hint.clone());
             starts.truncate(2);
@@ -181,7 +199,13 @@ impl Candidate for Compliance {
             })
             .collect();
         Ok(vec![
-            Variant::params("payload", "a payload on a mount on the table", defs, set_payload, starts),
+            Variant::params(
+                "payload",
+                "a payload on a mount on the table",
+                defs,
+                set_payload,
+                starts,
+            ),
             screw,
             Variant::params(
                 "hardening",

@@ -41,7 +41,6 @@ const MIN_PERIOD_S: f64 = 0.1;
 /// Longest period searched, s (and at most a third of the fitting part).
 const MAX_PERIOD_S: f64 = 10.0;
 
-
 /// `y` less its least-squares fit on the states a friction or inertia term follows
 /// (direction, velocity, acceleration, a constant): what no state explains.
 fn unexplained(s: &Signals, y: &[f64]) -> Vec<f64> {
@@ -53,7 +52,6 @@ fn unexplained(s: &Signals, y: &[f64]) -> Vec<f64> {
         None => y.to_vec(),
     }
 }
-
 
 /// Least time between the last level step and the fitting part's end, s: the force
 /// residual follows a step within a few tens of ms.
@@ -107,7 +105,6 @@ fn loop_stiffness_n_per_m(ctx: &Context) -> f64 {
     if k.is_finite() && k > 0.0 { k } else { 1e6 }
 }
 
-
 /// The force on the table that produces the wave `p` found in a residual that is `gain`
 /// times that force (−1 for the force residual; the loop's compliance, inverted, for the
 /// position residual). The amplitude is kept positive by moving the edge.
@@ -142,7 +139,6 @@ fn wave(p: &Periodic, gain: f64) -> Disturbance {
         }
     }
 }
-
 
 /// Samples either side of the detector's edge the refit searches: the detector times the
 /// edge by the residual, which lags the force by the loop's response (EMPS: ~10 ms).
@@ -223,7 +219,6 @@ fn refine_windows(rp: &Replays, w: Vec<ForceEvent>) -> Result<Disturbance, Diagn
             .collect(),
     ))
 }
-
 
 /// A sine's amplitude and phase: its sine and cosine parts are two linear columns, so two
 /// replays fit them exactly for a linear loop. The sine is fitted without a mean: a mean
@@ -341,7 +336,6 @@ fn linear_levels(r0: &DVector<f64>, cols: &[DVector<f64>]) -> Option<(f64, DVect
     (cost.is_finite() && x.iter().all(|v| v.is_finite())).then_some((cost, x))
 }
 
-
 /// Report keys and values of a disturbance.
 fn describe(d: &Disturbance) -> (Vec<String>, Vec<f64>) {
     let keys = |k: &[&str]| k.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
@@ -389,8 +383,6 @@ fn describe(d: &Disturbance) -> (Vec<String>, Vec<f64>) {
     }
 }
 
-
-
 /// A periodic wave found in a residual: the force on the table, whether it was read off
 /// the position residual, its peak ratio and share explained.
 struct Wave {
@@ -413,7 +405,11 @@ fn periodic_wave(ctx: &Context, rem_force: Option<&[f64]>, rem_pos: &[f64]) -> O
     };
     // The motor opposes a force on the table: the force residual is the force inverted.
     let in_force = rem_force.and_then(|f| find(f, MIN_EXPLAINED_FORCE).map(|p| (p, -1.0)));
-    let pos_min = if rem_force.is_some() { MIN_EXPLAINED_POS } else { MIN_EXPLAINED_FORCE };
+    let pos_min = if rem_force.is_some() {
+        MIN_EXPLAINED_POS
+    } else {
+        MIN_EXPLAINED_FORCE
+    };
     let in_pos = find(rem_pos, pos_min).map(|p| (p, loop_stiffness_n_per_m(ctx)));
     let from_position = match (&in_force, &in_pos) {
         (Some(f), Some(p)) => p.0.explained > f.0.explained,
@@ -443,7 +439,11 @@ fn place(ctx: &Context, w: &Wave) -> Result<Disturbance, DiagnoseError> {
         c.model.disturbance.push(d.clone());
         Ok(ctx.eng.lm_rows(&ctx.eng.sim_fit(&c, false)?).norm_squared())
     };
-    Ok(if cost(&in_command)? < cost(&on_table)? { in_command } else { on_table })
+    Ok(if cost(&in_command)? < cost(&on_table)? {
+        in_command
+    } else {
+        on_table
+    })
 }
 
 /// The force no state explains.
@@ -474,7 +474,11 @@ fn detect(ctx: &Context) -> Found {
     if bursts.len() > MAX_BURSTS || wave.as_ref().is_some_and(|w| w.from_position) {
         bursts.clear();
     }
-    Found { wave, steps, bursts }
+    Found {
+        wave,
+        steps,
+        bursts,
+    }
 }
 
 impl Candidate for External {
@@ -498,7 +502,10 @@ impl Candidate for External {
                 w.peak_ratio,
                 100.0 * w.explained
             ));
-            ev = ev.with("period_s", period_s).with("peak_ratio", w.peak_ratio).with("explained_share", w.explained);
+            ev = ev
+                .with("period_s", period_s)
+                .with("peak_ratio", w.peak_ratio)
+                .with("explained_share", w.explained);
         }
         if !f.steps.is_empty() {
             parts.push(format!("{} level steps", f.steps.len()));
@@ -509,7 +516,9 @@ impl Candidate for External {
             ev = ev.with("bursts", f.bursts.len() as f64);
         }
         if parts.is_empty() {
-            return Evidence::absent("the force no state explains is neither periodic nor stepped nor bursty");
+            return Evidence::absent(
+                "the force no state explains is neither periodic nor stepped nor bursty",
+            );
         }
         Evidence {
             pass: f.wave.is_some(),
@@ -541,8 +550,17 @@ impl Candidate for External {
         let mut out = vec![];
         if let Some(w) = &f.wave {
             let d = refine(ctx, place(ctx, w)?)?;
-            let n = if matches!(w.dist, Disturbance::Square { .. }) { 5 } else { 3 };
-            out.push(Variant::fixed("wave", "a periodic wave, which predicts its held-out part", fixed(d, n), Part::Held));
+            let n = if matches!(w.dist, Disturbance::Square { .. }) {
+                5
+            } else {
+                3
+            };
+            out.push(Variant::fixed(
+                "wave",
+                "a periodic wave, which predicts its held-out part",
+                fixed(d, n),
+                Part::Held,
+            ));
         }
         if !f.steps.is_empty() {
             let mut times_s = vec![];

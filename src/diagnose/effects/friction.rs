@@ -153,7 +153,9 @@ impl Candidate for Coulomb {
         term_evidence(
             t,
             c > 0.0,
-            format!("direction-of-motion term of the force residual {c:.3} N ({t:.1} standard errors)"),
+            format!(
+                "direction-of-motion term of the force residual {c:.3} N ({t:.1} standard errors)"
+            ),
         )
         .with("coefficient_n", c)
         .hint(vec![c.max(0.0)])
@@ -203,7 +205,12 @@ impl Candidate for Stribeck {
         let mut best: Option<(f64, f64, f64)> = None;
         for vs_mm_s in [0.5, 1.0, 2.0, 4.0, 8.0, 16.0] {
             let vs = mm_per_s_to_m_per_s(vs_mm_s);
-            let g = ctx.sig.vel_mps.iter().map(|&v| dir(v) * (-(v / vs).powi(2)).exp()).collect();
+            let g = ctx
+                .sig
+                .vel_mps
+                .iter()
+                .map(|&v| dir(v) * (-(v / vs).powi(2)).exp())
+                .collect();
             if let Some((c, t)) = beside(ctx, g)
                 && best.is_none_or(|b| t > b.1)
             {
@@ -316,12 +323,18 @@ impl Candidate for Viscous {
         let Some((c, t)) = linear_term(ctx, 1) else {
             return Evidence::absent("the force residual could not be regressed");
         };
-        let (s, ts) = beside(ctx, ctx.sig.vel_mps.iter().map(|v| v.abs()).collect()).unwrap_or((0.0, 0.0));
+        let (s, ts) =
+            beside(ctx, ctx.sig.vel_mps.iter().map(|v| v.abs()).collect()).unwrap_or((0.0, 0.0));
         let v_ref = mm_per_s_to_m_per_s(100.0);
         let power = [0.4, 0.55, 0.7]
             .into_iter()
             .filter_map(|d| {
-                let col = ctx.sig.vel_mps.iter().map(|&v| dir(v) * (v.abs() / v_ref).powf(d)).collect();
+                let col = ctx
+                    .sig
+                    .vel_mps
+                    .iter()
+                    .map(|&v| dir(v) * (v.abs() / v_ref).powf(d))
+                    .collect();
                 beside(ctx, col).map(|(c, t)| (d, c, t))
             })
             .max_by(|a, b| a.2.abs().total_cmp(&b.2.abs()));
@@ -343,7 +356,11 @@ impl Candidate for Viscous {
     fn variants(&self, _ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
         let fig = |k: &str| ev.figures.get(k).copied().unwrap_or(0.0);
         let c0 = ev.hint.first().copied().unwrap_or(0.0);
-        let (s0, p0, d0) = (fig("split_n_s_per_m"), fig("power_n_at_100mm_per_s").max(1.0), fig("power_exponent").max(0.3));
+        let (s0, p0, d0) = (
+            fig("split_n_s_per_m"),
+            fig("power_n_at_100mm_per_s").max(1.0),
+            fig("power_exponent").max(0.3),
+        );
         Ok(vec![
             Variant::params(
                 "linear",
@@ -530,9 +547,13 @@ impl Candidate for ConstantForce {
             return Evidence::absent("the force residual could not be regressed");
         };
         // The residual is the motor's extra force; a force on the table is opposed by it.
-        term_evidence(t, true, format!("constant term of the force residual {c:.3} N ({t:.1} standard errors)"))
-            .with("coefficient_n", c)
-            .hint(vec![-c])
+        term_evidence(
+            t,
+            true,
+            format!("constant term of the force residual {c:.3} N ({t:.1} standard errors)"),
+        )
+        .with("coefficient_n", c)
+        .hint(vec![-c])
     }
 
     fn variants(&self, _ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
@@ -556,7 +577,13 @@ mod tests {
         // +3 mm, −3 mm, +3 mm, then +30 mm, at 10 mm/s in 1 ms samples.
         let mut pos = vec![0.0];
         let mut vel = vec![0.0];
-        for (len_mm, sign) in [(3.0, 1.0), (3.0, -1.0), (3.0, 1.0), (30.0, -1.0), (3.0, 1.0)] {
+        for (len_mm, sign) in [
+            (3.0, 1.0),
+            (3.0, -1.0),
+            (3.0, 1.0),
+            (30.0, -1.0),
+            (3.0, 1.0),
+        ] {
             let n = (len_mm / 0.01) as usize;
             for _ in 0..n {
                 let x = pos.last().copied().unwrap_or(0.0) + sign * 1e-5;

@@ -43,7 +43,9 @@ pub fn set_table(c: &mut Cand, t: &[(f64, f64)]) {
 fn quiet_rows(ctx: &Context, range: std::ops::Range<usize>) -> Vec<usize> {
     let sig = ctx.sig;
     let acc_max = sig.cmd_acc_mps2.iter().fold(0.0_f64, |m, a| m.max(a.abs()));
-    range.filter(|&k| sig.cmd_acc_mps2[k].abs() <= 0.01 * acc_max).collect()
+    range
+        .filter(|&k| sig.cmd_acc_mps2[k].abs() <= 0.01 * acc_max)
+        .collect()
 }
 
 /// The direction of travel the command gives sample `k`: a friction the model has in
@@ -70,7 +72,13 @@ fn lead_period(ctx: &Context) -> Option<evidence::PositionPeriodic> {
     let n = sig.pos_m.len().min(sig.r_pos.len());
     let rows = quiet_rows(ctx, 0..n);
     if 2 * rows.len() < n {
-        return evidence::periodic_in_position(&sig.pos_m[..n], &sig.r_pos[..n], mm_to_m(0.5), mm_to_m(60.0), HARMONICS);
+        return evidence::periodic_in_position(
+            &sig.pos_m[..n],
+            &sig.r_pos[..n],
+            mm_to_m(0.5),
+            mm_to_m(60.0),
+            HARMONICS,
+        );
     }
     let feed_key = |k: usize| (m_to_mm(sig.cmd_vel_mps[k]) * 2.0).round() as i64;
     let mut means: std::collections::BTreeMap<i64, (f64, usize)> = Default::default();
@@ -87,7 +95,11 @@ fn lead_period(ctx: &Context) -> Option<evidence::PositionPeriodic> {
         })
         .unzip();
     let found = evidence::periodic_in_position(&x, &y, mm_to_m(0.5), mm_to_m(60.0), HARMONICS)?;
-    let (lo, hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = x
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
     let span = (3.0 * found.period_m / (hi - lo)).min(0.05);
     let found = evidence::sharpen_period(&found, &x, &y, span, 41);
     let mut p = evidence::refit_at_period(&found, &sig.pos_m[..n], &sig.r_pos[..n])?;
@@ -103,7 +115,9 @@ fn table_on(ctx: &Context, rows: &[usize], spacing_m: f64) -> Option<(Vec<(f64, 
     let sig = ctx.sig;
     let (lo, hi) = rows
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &k| (a.min(sig.pos_m[k]), b.max(sig.pos_m[k])));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &k| {
+            (a.min(sig.pos_m[k]), b.max(sig.pos_m[k]))
+        });
     if rows.len() < 100 || !(hi > lo && spacing_m > 0.0) {
         return None;
     }
@@ -144,13 +158,18 @@ fn table_on(ctx: &Context, rows: &[usize], spacing_m: f64) -> Option<(Vec<(f64, 
     let mut table = vec![(m_to_mm(lo - step), 0.0)];
     table.extend((0..m).map(|i| (m_to_mm(lo + i as f64 * step), m_to_um(x[i]))));
     table.push((m_to_mm(hi + step), 0.0));
-    (dof.is_finite() && table.iter().all(|(a, b)| a.is_finite() && b.is_finite())).then_some((table, dof))
+    (dof.is_finite() && table.iter().all(|(a, b)| a.is_finite() && b.is_finite()))
+        .then_some((table, dof))
 }
 
 /// The harmonics of `p` as a table every 1/24 of a pitch over the record's travel.
 fn harmonics_table(ctx: &Context, p: &evidence::PositionPeriodic) -> Vec<(f64, f64)> {
     let pos = &ctx.eng.split.main.pos_m;
-    let (lo, hi) = pos.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    let (lo, hi) = pos
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
     let step = p.period_m / 24.0;
     let n = (((hi - lo) / step).ceil() as usize + 3).min(9_000);
     let x0 = lo - step;
@@ -172,7 +191,9 @@ impl Candidate for Lead {
 
     fn signature(&self, ctx: &Context) -> Evidence {
         if ctx.base.model.pos_source == PosSource::MotorEncoder {
-            return Evidence::absent("the record's position is the motor encoder, which a lead error does not move");
+            return Evidence::absent(
+                "the record's position is the motor encoder, which a lead error does not move",
+            );
         }
         match lead_period(ctx) {
             Some(p) => Evidence::found(
@@ -222,10 +243,16 @@ impl Candidate for Lead {
         if let Some((table, dof)) = table_on(ctx, &rows, mm_to_m(spacing_mm)) {
             out.push(Variant::fixed(
                 "table",
-                format!("a table of knots every {spacing_mm:.1} mm along the travel the record covered"),
+                format!(
+                    "a table of knots every {spacing_mm:.1} mm along the travel the record covered"
+                ),
                 Fixed {
                     shape: Shape::LeadTable(table.clone()),
-                    keys: vec!["knot_spacing_mm".into(), "table_points".into(), "effective_parameters".into()],
+                    keys: vec![
+                        "knot_spacing_mm".into(),
+                        "table_points".into(),
+                        "effective_parameters".into(),
+                    ],
                     theta: vec![spacing_mm, table.len() as f64, dof],
                     n_params: dof.ceil() as usize,
                 },

@@ -35,7 +35,9 @@ fn dir(v: f64) -> f64 {
 /// spread evenly: below that the signature is clearly absent).
 fn reversal_evidence(ctx: &Context) -> Evidence {
     if matches!(ctx.base.model.axis.drive.coupling, Coupling::Payload { .. }) {
-        return Evidence::absent("the model has a payload on a mount, beside which the plant has no play");
+        return Evidence::absent(
+            "the model has a payload on a mount, beside which the plant has no play",
+        );
     }
     let s = ctx.sig;
     let dt = ctx.eng.split.main.t3_s;
@@ -65,7 +67,11 @@ fn reversal_evidence(ctx: &Context) -> Evidence {
         let d = dir(v);
         if d != 0.0 && last != 0.0 && d != last {
             reversals += 1;
-            for m in near.iter_mut().take((k + half).min(n)).skip(k.saturating_sub(half)) {
+            for m in near
+                .iter_mut()
+                .take((k + half).min(n))
+                .skip(k.saturating_sub(half))
+            {
                 *m = true;
             }
         }

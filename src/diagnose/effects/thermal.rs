@@ -50,7 +50,10 @@ fn growth_regression(ctx: &Context, tau_drift_s: f64) -> Option<(f64, Vec<f64>)>
         }
         let x0_mm = m_to_mm(-b / a);
         if best.as_ref().is_none_or(|(e, _)| r.explained > *e) {
-            best = Some((r.explained, vec![heat.min(1e5), tau, x0_mm.clamp(-2000.0, 2000.0)]));
+            best = Some((
+                r.explained,
+                vec![heat.min(1e5), tau, x0_mm.clamp(-2000.0, 2000.0)],
+            ));
         }
     }
     best
@@ -70,7 +73,9 @@ impl Candidate for Growth {
 
     fn signature(&self, ctx: &Context) -> Evidence {
         if ctx.base.model.pos_source == PosSource::MotorEncoder {
-            return Evidence::absent("the record's position is the motor encoder, which the screw's growth does not move");
+            return Evidence::absent(
+                "the record's position is the motor encoder, which the screw's growth does not move",
+            );
         }
         let drift = evidence::drift(&ctx.sig.t_s, &ctx.sig.r_pos, None);
         let tau = drift.as_ref().and_then(|d| d.tau_s).unwrap_or(600.0);
@@ -79,14 +84,18 @@ impl Candidate for Growth {
             Some((e, h)) => (*e, h.clone()),
             None => (0.0, vec![100.0, tau.clamp(10.0, 36_000.0), 0.0]),
         };
-        let drift_text = drift.as_ref().map_or("no slow drift in time".to_owned(), |d| {
-            format!(
-                "a drift of {:.1} µm{}, {:.0} % of the slow part",
-                m_to_um(d.magnitude),
-                d.tau_s.map(|t| format!(" with a time constant of {t:.0} s")).unwrap_or_default(),
-                100.0 * d.explained
-            )
-        });
+        let drift_text = drift
+            .as_ref()
+            .map_or("no slow drift in time".to_owned(), |d| {
+                format!(
+                    "a drift of {:.1} µm{}, {:.0} % of the slow part",
+                    m_to_um(d.magnitude),
+                    d.tau_s
+                        .map(|t| format!(" with a time constant of {t:.0} s"))
+                        .unwrap_or_default(),
+                    100.0 * d.explained
+                )
+            });
         let text = format!(
             "the position residual shows {drift_text}; the screw's heat and the distance from a bearing at {:.0} mm explain {:.0} % of it",
             hint[2],
@@ -103,7 +112,11 @@ impl Candidate for Growth {
     }
 
     fn variants(&self, _ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
-        let h = if ev.hint.len() == 3 { ev.hint.clone() } else { vec![100.0, 600.0, 0.0] };
+        let h = if ev.hint.len() == 3 {
+            ev.hint.clone()
+        } else {
+            vec![100.0, 600.0, 0.0]
+        };
         let mut v = Variant::params(
             "motion_heat",
             "heat per metre travelled, lost to the surroundings with a time constant",
