@@ -21,7 +21,7 @@ use serde::Serialize;
 use super::criterion::{self, Judgement, Part, Scale};
 use super::engine::{Cand, Engine, Eval, at};
 use super::lm::{self, Param};
-use super::replay::Record;
+use super::replay::{Model, Record};
 use super::{DiagnoseError, Effect};
 use crate::preset::AxisParams;
 
@@ -40,6 +40,11 @@ pub const MAX_SMOOTHING_MM_PER_S: f64 = 5.0;
 /// is judged against the calibrated model, so it must sit at its optimum, not where a
 /// short solve along a valley of the gains stopped.
 const CALIBRATION_PATIENCE: usize = 20;
+/// Largest command delay the calibration takes, samples: half a period. A drive samples
+/// its command and holds it, and a hold lags by half a period on average; how a real loop
+/// and the replay's discretisation place that half period differs from machine to machine
+/// and is no effect. A command delay beyond it is the candidate's.
+pub const MAX_CAL_DELAY_SAMPLES: f64 = 0.5;
 /// Largest channel shift searched, samples.
 const MAX_SHIFT: f64 = 8.0;
 /// A difference of the two channels' shifts below this is one shift of both, samples: a
@@ -62,6 +67,8 @@ pub enum CalParam {
     Kp,
     /// Velocity-loop gain (ratio).
     Kv,
+    /// A command delay within half a sample, samples (see [`MAX_CAL_DELAY_SAMPLES`]).
+    Delay,
 }
 
 impl CalParam {
@@ -74,13 +81,14 @@ impl CalParam {
             CalParam::Smoothing => "coulomb_smoothing_mm_per_s",
             CalParam::Kp => "kp",
             CalParam::Kv => "kv",
+            CalParam::Delay => "delay_samples",
         }
     }
 
     /// The value that leaves the nominal as it is.
     pub fn neutral(self) -> f64 {
         match self {
-            CalParam::Smoothing => 0.0,
+            CalParam::Smoothing | CalParam::Delay => 0.0,
             _ => 1.0,
         }
     }
@@ -99,6 +107,11 @@ impl CalParam {
                 hi: MAX_SMOOTHING_MM_PER_S,
                 scale: 0.5,
             },
+            CalParam::Delay => Param {
+                lo: -MAX_CAL_DELAY_SAMPLES,
+                hi: MAX_CAL_DELAY_SAMPLES,
+                scale: 0.1,
+            },
             _ => ratio(MAX_RATIO_CHANGE),
         }
     }
@@ -107,7 +120,7 @@ impl CalParam {
     pub fn at_bound(self, v: f64) -> bool {
         let b = self.bounds();
         let tol = 0.005 * (b.hi - b.lo);
-        self != CalParam::Smoothing && (v < b.lo + tol || v > b.hi - tol)
+        !matches!(self, CalParam::Smoothing) && (v < b.lo + tol || v > b.hi - tol)
     }
 
     /// The parameters worth calibrating on `a`: those it has (a Coulomb level of 0 is an
@@ -120,12 +133,17 @@ impl CalParam {
         if a.friction.enabled && a.friction.coulomb_n > 0.0 {
             v.extend([CalParam::Coulomb, CalParam::Smoothing]);
         }
-        v.extend([CalParam::Kp, CalParam::Kv]);
+        v.extend([CalParam::Kp, CalParam::Kv, CalParam::Delay]);
         v
     }
 
-    /// Sets this parameter of `a` to `v` (a ratio scales the nominal's value).
-    pub fn apply(self, a: &mut AxisParams, v: f64) {
+    /// Sets this parameter of `m` to `v` (a ratio scales the nominal's value).
+    pub fn apply(self, m: &mut Model, v: f64) {
+        if self == CalParam::Delay {
+            m.delay_s += v * m.t3_s;
+            return;
+        }
+        let a = &mut m.axis;
         match self {
             CalParam::Mass => {
                 a.drive.table_mass_kg *= v;
@@ -139,6 +157,7 @@ impl CalParam {
             CalParam::Smoothing => a.friction.coulomb_smoothing_mm_per_s = v.max(0.0),
             CalParam::Kp => a.servo.kp_per_s *= v,
             CalParam::Kv => a.servo.kv_n_s_per_m *= v,
+            CalParam::Delay => {}
         }
     }
 }
@@ -197,7 +216,7 @@ impl Calibration {
     pub fn apply(&self, nominal: &Cand) -> Cand {
         let mut c = nominal.clone();
         for &(p, r) in &self.ratios {
-            p.apply(&mut c.model.axis, r);
+            p.apply(&mut c.model, r);
         }
         c
     }
@@ -236,7 +255,7 @@ pub fn lines(ratios: &[(CalParam, f64)]) -> Vec<String> {
     ratios
         .iter()
         .map(|(p, r)| match p {
-            CalParam::Smoothing => format!("{} {r:.3}", p.name()),
+            CalParam::Smoothing | CalParam::Delay => format!("{} {r:.3}", p.name()),
             _ => format!("{} ×{r:.4}", p.name()),
         })
         .collect()
@@ -247,7 +266,7 @@ pub fn lines(ratios: &[(CalParam, f64)]) -> Vec<String> {
 fn with_ratios(base: &Cand, ps: &[CalParam], r: &[f64], nuisance: &[f64]) -> Cand {
     let mut c = base.clone();
     for (&p, &x) in ps.iter().zip(r) {
-        p.apply(&mut c.model.axis, x);
+        p.apply(&mut c.model, x);
     }
     if let [fc, f0] = nuisance {
         Effect::CoulombFriction.apply(&[*fc], &mut c.model);
@@ -522,8 +541,15 @@ fn eval_with_skew(eng: &Engine, c: &Cand, s: &Skew) -> Result<Eval, DiagnoseErro
 /// Fits the nominal's parameters and the channel shifts on `eng`'s fitting part, and judges
 /// the skew the shifts read: taken when the model with it wins by the criterion.
 pub fn fit(eng: &Engine, nominal: &Cand) -> Result<Calibration, DiagnoseError> {
-    let ps = CalParam::of(&nominal.model.axis);
-    let (values, up, uf) = fit_ratios(eng, nominal, &ps, true, None)?;
+    // A delay and a common shift of both channels are one parameter: the shifts are read
+    // without the delay, which the fits without them take up.
+    let mut ps: Vec<CalParam> = CalParam::of(&nominal.model.axis)
+        .into_iter()
+        .filter(|p| *p != CalParam::Delay)
+        .collect();
+    let (mut values, up, uf) = fit_ratios(eng, nominal, &ps, true, None)?;
+    ps.push(CalParam::Delay);
+    values.push(0.0);
     let (skew_read, common) = classify_shifts(up, eng.has_force.then_some(uf));
     let cal = Calibration {
         at_bound: at_bound(&ps, &values),

@@ -280,7 +280,7 @@ pub fn rebuild(
 ) -> Cand {
     let mut c = nominal.clone();
     for ((p, _), v) in cal.ratios.iter().zip(values) {
-        p.apply(&mut c.model.axis, *v);
+        p.apply(&mut c.model, *v);
     }
     let mut at = 0;
     for s in chosen {

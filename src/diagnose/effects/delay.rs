@@ -48,10 +48,11 @@ impl Candidate for Delay {
             "position and force both follow the model {lag:.2} samples ({:.2} ms) late",
             s_to_ms(lag * t3)
         );
-        if lag <= 0.0 {
-            return Evidence::absent(text);
+        // Within half a sample the lag is the calibration's (a hold's half period).
+        if lag <= crate::diagnose::calibrate::MAX_CAL_DELAY_SAMPLES {
+            return Evidence::absent(format!("{text}: within the half sample the calibration takes"));
         }
-        Evidence::found(lag >= crate::diagnose::calibrate::MIN_SKEW, text)
+        Evidence::found(true, text)
             .with("lag_samples", lag)
             .hint(vec![s_to_ms(lag * t3)])
     }
