@@ -29,6 +29,34 @@ pub struct Evidence {
     /// Starting values for the fit, in the order of the effect's parameters.
     #[serde(skip)]
     pub hint: Vec<f64>,
+    /// What the signature's detector found, for the candidate's variants to shape from
+    /// (not found twice).
+    #[serde(skip)]
+    pub detail: Option<Detail>,
+}
+
+/// A detector's finding carried from a candidate's signature to its variants.
+#[derive(Clone)]
+pub struct Detail(pub std::sync::Arc<dyn std::any::Any + Send + Sync>);
+
+impl std::fmt::Debug for Detail {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Detail(..)")
+    }
+}
+
+impl Detail {
+    /// Wraps a finding.
+    pub fn new<T: Send + Sync + 'static>(t: T) -> Detail {
+        Detail(std::sync::Arc::new(t))
+    }
+}
+
+impl Evidence {
+    /// The detector's finding of type `T`, if the signature kept one.
+    pub fn detail<T: 'static>(&self) -> Option<&T> {
+        self.detail.as_ref().and_then(|d| d.0.downcast_ref::<T>())
+    }
 }
 
 impl Evidence {
@@ -399,10 +427,10 @@ fn owns(e: Effect, p: CalParam) -> bool {
 impl Context<'_, '_> {
     /// The signature of `c`, and its fit when the signature is not clearly absent: each
     /// variant fitted, the first kept unless a later one wins over it by the criterion.
-    pub fn fit(&self, c: &dyn Candidate) -> Result<Option<Fitted>, DiagnoseError> {
+    pub fn fit(&self, c: &dyn Candidate) -> Result<Result<Fitted, Evidence>, DiagnoseError> {
         let ev = c.signature(self);
         if ev.absent {
-            return Ok(None);
+            return Ok(Err(ev));
         }
         let mut best: Option<Fitted> = None;
         for v in c.variants(self, &ev)? {
@@ -435,7 +463,7 @@ impl Context<'_, '_> {
                 }
             });
         }
-        Ok(best)
+        Ok(best.ok_or(ev))
     }
 
     /// One variant fitted (or a detector's shape added) and judged against the base.

@@ -204,8 +204,8 @@ fn fit_all(ctx: &Context, effects: &[Effect]) -> Result<Vec<Ranked>, DiagnoseErr
                     let before = ctx.eng.replays();
                     let t0 = std::time::Instant::now();
                     let r = ctx.fit(c).map(|f| match f {
-                        Some(f) => Ranked::Fitted(Box::new(f)),
-                        None => Ranked::Skipped(e, c.signature(ctx)),
+                        Ok(f) => Ranked::Fitted(Box::new(f)),
+                        Err(ev) => Ranked::Skipped(e, ev),
                     });
                     if std::env::var_os("AXB_SERIAL").is_some() {
                         eprintln!(

@@ -50,7 +50,9 @@ impl Candidate for Delay {
         );
         // Within half a sample the lag is the calibration's (a hold's half period).
         if lag <= crate::diagnose::calibrate::MAX_CAL_DELAY_SAMPLES {
-            return Evidence::absent(format!("{text}: within the half sample the calibration takes"));
+            return Evidence::absent(format!(
+                "{text}: within the half sample the calibration takes"
+            ));
         }
         Evidence::found(true, text)
             .with("lag_samples", lag)

@@ -16,7 +16,7 @@ use super::{Candidate, Effect};
 use crate::diagnose::DiagnoseError;
 use crate::diagnose::criterion::Part;
 use crate::diagnose::evidence::{self, Periodic, WaveShape};
-use crate::diagnose::fit::{Context, Evidence, Fixed, Shape, Signals, Variant};
+use crate::diagnose::fit::{Context, Detail, Evidence, Fixed, Shape, Signals, Variant};
 use crate::diagnose::replay::{Disturbance, ForceEvent};
 use nalgebra::{DMatrix, DVector};
 
@@ -523,12 +523,20 @@ impl Candidate for External {
         Evidence {
             pass: f.wave.is_some(),
             text: format!("in what no state explains: {}", parts.join("; ")),
+            detail: Some(Detail::new(f)),
             ..ev
         }
     }
 
-    fn variants(&self, ctx: &Context, _ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
-        let f = detect(ctx);
+    fn variants(&self, ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
+        let found;
+        let f = match ev.detail::<Found>() {
+            Some(f) => f,
+            None => {
+                found = detect(ctx);
+                &found
+            }
+        };
         let dt = ctx.eng.split.main.t3_s;
         let t0 = ctx.sig.t_s.first().copied().unwrap_or(0.0);
         let t_end = t0 + ctx.sig.t_s.len() as f64 * dt;

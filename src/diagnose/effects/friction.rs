@@ -90,6 +90,21 @@ fn term_evidence(t: f64, sign_ok: bool, text: String) -> Evidence {
     Evidence::found(t.abs() >= FOUND_T, text).with("t", t)
 }
 
+/// Why a term `c` of the force residual, added to the base's value `base` of a term the
+/// nominal has at `nominal`, is the calibration's: the total stays within the calibration's
+/// range of the nominal (re-fitting a term the nominal has is calibration, not an effect).
+/// None when the nominal lacks the term or the total leaves that range.
+fn within_calibration(nominal: f64, base: f64, c: f64, what: &str, unit: &str) -> Option<String> {
+    let change = (base + c) / nominal - 1.0;
+    (nominal > 0.0 && change.abs() <= crate::diagnose::calibrate::MAX_RATIO_CHANGE).then(|| {
+        format!(
+            "the residual asks the nominal's {what} of {nominal:.1} {unit} to be {:.1} {unit} ({:+.1} %): within the calibration's range, a calibration matter",
+            base + c,
+            100.0 * change
+        )
+    })
+}
+
 /// Without a force column no friction signature can be read: each is fitted and judged by
 /// the criterion on the position.
 fn no_force() -> Evidence {
@@ -149,6 +164,15 @@ impl Candidate for Coulomb {
         let Some((c, t)) = linear_term(ctx, 0) else {
             return Evidence::absent("the force residual could not be regressed");
         };
+        if let Some(why) = within_calibration(
+            ctx.nominal.model.axis.friction.coulomb_n,
+            ctx.base.model.axis.friction.coulomb_n,
+            c,
+            "Coulomb level",
+            "N",
+        ) {
+            return Evidence::absent(why);
+        }
         // More friction than the model resists motion: the motor pushes harder along it.
         term_evidence(
             t,
@@ -339,6 +363,20 @@ impl Candidate for Viscous {
             })
             .max_by(|a, b| a.2.abs().total_cmp(&b.2.abs()));
         let (pd, pc, pt) = power.unwrap_or((0.5, 0.0, 0.0));
+        // A linear term the calibration covers is its; the other shapes are no ratio's.
+        let f = &ctx.base.model.axis.friction;
+        if ts.abs() < ABSENT_T
+            && pt.abs() < ABSENT_T
+            && let Some(why) = within_calibration(
+                ctx.nominal.model.axis.friction.viscous_n_s_per_m,
+                f.viscous_n_s_per_m,
+                c,
+                "viscous coefficient",
+                "N·s/m",
+            )
+        {
+            return Evidence::absent(why);
+        }
         let t_max = t.abs().max(ts.abs()).max(pt.abs());
         let text = format!(
             "speed term of the force residual {c:.3} N·s/m ({t:.1} standard errors); one that keeps its sign both ways {s:.3} N·s/m ({ts:.1}); one growing as |v|^{pd:.2}, {pc:.3} N at 100 mm/s ({pt:.1})"

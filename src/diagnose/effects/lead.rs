@@ -8,7 +8,7 @@ use crate::diagnose::DiagnoseError;
 use crate::diagnose::criterion::Part;
 use crate::diagnose::engine::Cand;
 use crate::diagnose::evidence;
-use crate::diagnose::fit::{Context, Evidence, Fixed, Shape, Variant};
+use crate::diagnose::fit::{Context, Detail, Evidence, Fixed, Shape, Variant};
 use crate::preset::PosSource;
 use crate::units::{m_to_mm, m_to_um, mm_to_m};
 
@@ -196,7 +196,9 @@ impl Candidate for Lead {
             );
         }
         match lead_period(ctx) {
-            Some(p) => Evidence::found(
+            Some(p) => Evidence {
+                detail: Some(Detail::new(p.clone())),
+                ..Evidence::found(
                 p.peak_ratio >= 12.0 && p.explained >= 0.1,
                 format!(
                     "the position residual repeats every {:.3} mm of travel, {:.2} µm at the fundamental, {:.0}× the median of its spectrum, {:.0} % of it explained",
@@ -209,15 +211,16 @@ impl Candidate for Lead {
             .with("pitch_mm", m_to_mm(p.period_m))
             .with("amplitude_um", m_to_um(p.amplitude))
             .with("peak_ratio", p.peak_ratio)
-            .with("explained_share", p.explained),
+            .with("explained_share", p.explained)
+            },
             None => Evidence::found(false, "the position residual has no period along the travel"),
         }
     }
 
     fn variants(&self, ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
         let mut out = vec![];
-        if let Some(p) = lead_period(ctx) {
-            let table = harmonics_table(ctx, &p);
+        if let Some(p) = ev.detail::<evidence::PositionPeriodic>() {
+            let table = harmonics_table(ctx, p);
             let mut keys = vec!["pitch_mm".to_owned(), "cumulative_um_per_m".to_owned()];
             let mut theta = vec![m_to_mm(p.period_m), p.slope_per_m * 1e6];
             for (k, (s, c)) in p.sin.iter().zip(&p.cos).enumerate() {
