@@ -344,7 +344,7 @@ mod tests {
     fn a_consistent_gain_wins_unless_the_floor_is_larger() {
         let base = eval(
             (0..2000)
-                .map(|k| if k % 2 == 0 { 1.0 } else { -1.0 })
+                .map(|k| if k.is_multiple_of(2) { 1.0 } else { -1.0 })
                 .collect(),
         );
         let half = eval(base.hold_pos.iter().map(|v| 0.5 * v).collect());
@@ -364,7 +364,7 @@ mod tests {
     /// however large its mean gain.
     #[test]
     fn a_gain_in_some_blocks_only_is_not_consistent() {
-        let sign = |k: usize| if k % 2 == 0 { 1.0 } else { -1.0 };
+        let sign = |k: usize| if k.is_multiple_of(2) { 1.0 } else { -1.0 };
         let base = eval((0..2000).map(sign).collect());
         let mixed = eval(
             (0..2000)
@@ -381,7 +381,7 @@ mod tests {
     /// judged on those two.
     #[test]
     fn blocks_the_term_does_not_touch_are_not_counted() {
-        let sign = |k: usize| if k % 2 == 0 { 1.0 } else { -1.0 };
+        let sign = |k: usize| if k.is_multiple_of(2) { 1.0 } else { -1.0 };
         let base = eval((0..2000).map(sign).collect());
         let local = eval(
             (0..2000)

@@ -237,11 +237,9 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
 /// step it takes, so Jacobians were most of a diagnosis; the rank-one update from the step
 /// just taken and its rows costs no replay. Every fourth step, and at the optimum (the
 /// parameters' uncertainties), the Jacobian is replayed whole again: a secant estimate
-/// drifts along a long valley. Only the candidates of the later rounds use them (see
-/// `Context::best_lm_strided`): the calibration, which every candidate is measured
-/// against, left a residual that a compliance's joint refit of the ratios took (seed 5151:
-/// clean records flagged 1 → 7 of 12), and the first round's fits, which land in another
-/// of a rough cost's local minima now and then, changed five of the rule tests' records.
+/// drifts along a long valley. Only the joint fits use them (`fit::Context::polish`,
+/// `select::joint_refit`): the calibration, which every candidate is measured against,
+/// must sit at its optimum, not where an estimate of the Jacobian stopped.
 const SECANT_UPDATES: usize = 3;
 
 /// Minimises the squared rows over the parameters from `start`. `step` is the relative
@@ -272,9 +270,8 @@ pub fn fit_secant(
 /// as many replays as the secant solve had. The solver's patience counts its steps'
 /// evaluations, (n + 1) per unit; a step costs one replay plus, with `secant` updates
 /// between two whole Jacobians, n / (secant + 1) for the Jacobian, and n with whole ones
-/// only. With the secant solve's patience, a ten-parameter restart that crawled along a
-/// valley replayed the record 726 times, five times the solve before it (the fresh seed
-/// 6969 case_073_skew at 60 s: one screw's spring fit took 6 s of a 16 s diagnosis).
+/// only. With the secant solve's patience, a ten-parameter restart that crawls along a
+/// valley replays the record several times as often as the solve before it.
 fn restart_patience(patience: usize, secant: usize, n: usize) -> usize {
     let per_secant_step = (secant + 1) + n;
     let per_whole_step = (secant + 1) * (n + 1);
@@ -312,8 +309,7 @@ fn fit_with(
     };
     let mut problem = solve(problem, patience);
     // The solver stops where a step along the Jacobian it was given fails; when that was a
-    // secant estimate, the stop may be the estimate's (seed 2323 case 17: a Stribeck
-    // friction stalled at 55 % of its excess). It goes on from there with whole Jacobians;
+    // secant estimate, the stop may be the estimate's, short of the optimum. It goes on from there with whole Jacobians;
     // where it had stopped at the optimum, that costs the whole Jacobian the uncertainties
     // need anyway and a step or two.
     let stalled = problem

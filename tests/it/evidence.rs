@@ -2,7 +2,7 @@
 //! known truth, on signals that must not trigger them, and on degenerate input.
 
 use axisbench::diagnose::evidence::{
-    self, Burst, Periodic, RINGING_T, WaveShape, bursts, drift, grid, lag, periodic_in_position,
+    self, Burst, Periodic, RINGING_T, WaveShape, bursts, drift, grid, periodic_in_position,
     periodic_in_time, regress, resonance, ringing, steps, steps_to_end, tone,
 };
 use std::f64::consts::{PI, TAU};
@@ -308,47 +308,6 @@ fn evidence_burst_at_known_place() {
     assert!(bursts(&rng.noise(30_000, 0.1), 200, 4.0).is_empty());
 }
 
-/// A smooth signal (sum of slow sines) at fractional time t (samples).
-fn smooth(t: f64) -> f64 {
-    (TAU * t / 97.0).sin() + 0.6 * (TAU * t / 41.3 + 1.0).sin() + 0.3 * (TAU * t / 233.0).cos()
-}
-
-#[test]
-fn evidence_lag_fractional_and_its_sign() {
-    let n = 20_000;
-    let a: Vec<f64> = (0..n).map(|k| smooth(k as f64)).collect();
-    for shift in [0.4, 1.0, -2.3, 7.75] {
-        // b is a delayed, scaled and offset copy of a: b[k] = 1.7·a(k − shift) + 3.
-        let b: Vec<f64> = (0..n)
-            .map(|k| 1.7 * smooth(k as f64 - shift) + 3.0)
-            .collect();
-        let l = lag(&a, &b, 20).expect("lag");
-        assert!((l.samples - shift).abs() < 0.05, "shift {shift}: {l:?}");
-        assert!(l.correlation > 0.99, "{l:?}");
-        // Swapping the roles flips the sign.
-        let back = lag(&b, &a, 20).expect("lag");
-        assert!(
-            (back.samples + shift).abs() < 0.05,
-            "shift {shift}: {back:?}"
-        );
-    }
-    // With noise on both the estimate stays within a tenth of a sample.
-    let mut rng = Rng::new(13);
-    let an: Vec<f64> = a.iter().map(|v| v + 0.002 * rng.gauss()).collect();
-    let bn: Vec<f64> = (0..n)
-        .map(|k| smooth(k as f64 - 0.4) + 0.002 * rng.gauss())
-        .collect();
-    let l = lag(&an, &bn, 20).expect("lag");
-    assert!((l.samples - 0.4).abs() < 0.1, "{l:?}");
-    // Inverted copy: found with a negative correlation.
-    let inv: Vec<f64> = (0..n).map(|k| -smooth(k as f64 - 3.0)).collect();
-    let l = lag(&a, &inv, 20).expect("lag");
-    assert!(
-        (l.samples - 3.0).abs() < 0.05 && l.correlation < -0.99,
-        "{l:?}"
-    );
-}
-
 /// White noise through a lightly damped 2nd-order low-pass (bilinear, prewarped).
 fn resonant(n: usize, f_hz: f64, zeta: f64, dt: f64, seed: u64) -> Vec<f64> {
     let w = TAU * f_hz;
@@ -534,7 +493,7 @@ fn evidence_degenerate_input_gives_none_or_empty() {
             );
             assert!(steps(y, 1, 6.0, 5).is_empty() && bursts(y, 10, 3.0).is_empty());
         }
-        let _ = (grid(y, 1e-9, 0.02), lag(y, y, 5), regress(&[y], y, 1.0));
+        let _ = (grid(y, 1e-9, 0.02), regress(&[y], y, 1.0));
         let _ = (
             steps(y, 0, 0.0, usize::MAX),
             steps_to_end(y, usize::MAX, 0, 0.0, usize::MAX),
@@ -587,7 +546,6 @@ proptest::proptest! {
         p_span in 1.0..100.0f64,
         gap in 0usize..50,
         window in 0usize..100,
-        max_lag in 0usize..400,
     ) {
         let n = y.len().min(x.len());
         let (y, x) = (&y[..n], &x[..n]);
@@ -608,9 +566,6 @@ proptest::proptest! {
         }
         for b in bursts(y, window, 2.0) {
             proptest::prop_assert!(b.start < b.end && b.end <= n && b.rms.is_finite(), "{b:?}");
-        }
-        if let Some(l) = lag(x, y, max_lag) {
-            proptest::prop_assert!(l.samples.is_finite() && l.correlation.abs() <= 1.0, "{l:?}");
         }
         if let Some(r) = resonance(y, 1e-3, 1.0, 400.0, Some(x)) {
             proptest::prop_assert!(r.freq_hz.is_finite() && r.damping_ratio.is_finite(), "{r:?}");

@@ -62,9 +62,8 @@ const STEP_JOINT_ROUNDS: usize = 2;
 
 /// The level steps of `y` fitted jointly with its states (direction, speed, acceleration,
 /// a constant; see [`unexplained`]). A force that changes level at times the program's moves
-/// share is partly taken by the speed or direction term when the states are fitted alone
-/// (2929 case_062: −312 N·s/m from three level steps), which leaves a residual that is no
-/// longer piecewise constant; fitting the steps with the states gives the states back
+/// share is partly taken by the speed or direction term when the states are fitted alone,
+/// which leaves a residual that is no longer piecewise constant; fitting the steps with the states gives the states back
 /// their own share. The constant goes with the states, so the level is 0 before the first
 /// step, as [`Disturbance::Steps`] has it.
 fn stepped_steps(s: &Signals, y: &[f64], min_gap: usize, end_gap: usize) -> Vec<evidence::Step> {
@@ -222,9 +221,8 @@ fn refine_windows(rp: &Replays, w: Vec<ForceEvent>) -> Result<Disturbance, Diagn
 
 /// A sine's amplitude and phase: its sine and cosine parts are two linear columns, so two
 /// replays fit them exactly for a linear loop. The sine is fitted without a mean: a mean
-/// beside it is a constant force, which the next round names (2828 case_066: a sine of
-/// 19 N beside a cable carrier's −35 N, the sine's offset took the carrier's force and the
-/// constant force was not named). A square wave keeps its offset: which of its two levels
+/// beside it is a constant force, which is another candidate's (a sine's offset would take a
+/// constant force standing beside it). A square wave keeps its offset: which of its two levels
 /// is the rest level the record does not say.
 fn refine_sine(rp: &Replays, d: Disturbance) -> Result<Disturbance, DiagnoseError> {
     let Disturbance::Sine {

@@ -15,7 +15,6 @@
 
 mod drift;
 mod grid;
-mod lag;
 mod periodic;
 mod position;
 mod regress;
@@ -24,7 +23,6 @@ mod steps;
 
 pub use drift::{Drift, drift};
 pub use grid::{Grid, grid};
-pub use lag::{Lag, lag};
 pub use periodic::{Periodic, WaveShape, periodic_in_time};
 pub use position::{PositionPeriodic, periodic_in_position, refit_at_period, sharpen_period};
 pub use regress::{Regression, minus_fit, regress};
@@ -202,27 +200,6 @@ fn dtft_power(y: &[f64], omega: f64) -> f64 {
         }
     }
     acc.norm_sqr()
-}
-
-/// The least-squares line y ≈ a + b·x through the points: (a, b); None with fewer than two
-/// points or an x that does not vary.
-pub fn line_fit(x: &[f64], y: &[f64]) -> Option<(f64, f64)> {
-    let n = x.len().min(y.len());
-    let f = lstsq(n, 2, |i, j| if j == 0 { 1.0 } else { x[i] }, y)?;
-    let (a, b) = (f.coef[0], f.coef[1]);
-    (a.is_finite() && b.is_finite() && f.var_unit[1].is_finite()).then_some((a, b))
-}
-
-/// Least-squares coefficients of y ≈ X·c (X: `rows` × `cols`, given by `x(row, col)`);
-/// None when a coefficient is not finite.
-pub fn lstsq_coef(
-    rows: usize,
-    cols: usize,
-    x: impl Fn(usize, usize) -> f64,
-    y: &[f64],
-) -> Option<Vec<f64>> {
-    let f = lstsq(rows, cols, x, y)?;
-    f.coef.iter().all(|c| c.is_finite()).then_some(f.coef)
 }
 
 /// Least-squares solution of a small problem.

@@ -187,8 +187,7 @@ pub fn sharpen_period(
             if c.1 > b.1 { c } else { b }
         });
     // A best at either end of the span is no peak of its own: a fit that merely grows
-    // toward a neighbouring period (2828 case_050, a 2.93 mm pitch read as 5.87 mm and
-    // carried to the span's end at 6.16 mm).
+    // toward a neighbouring period.
     if (best.0 - lo).abs() < 0.5 * step || (hi - best.0).abs() < 0.5 * step {
         return refit_at_period(found, x_m, y).unwrap_or_else(|| found.clone());
     }
@@ -209,10 +208,8 @@ const LS_REFINE_BINS: usize = 8192;
 /// periodogram peaks in [min_p, max_p] bins and their subharmonics, each refined by the
 /// harmonics' summed power; the candidate whose harmonics explain most of the binned
 /// samples (a count-weighted fit at the bins' mean positions, so the bins the profile only
-/// interpolates count for nothing) wins. The interpolated profile's own fit was the measure
-/// before, and the strongest peak the only one tried: beside a friction whose law the model
-/// lacks, 2323 case_064's 2.59 mm pitch lost to its third subharmonic (7.78 mm, 48× the
-/// median), which explains 0.44 of the samples against the pitch's 0.52. For up to
+/// interpolates count for nothing) wins. Beside a friction whose law the model lacks, a
+/// subharmonic can hold the highest peak while the pitch itself explains more. For up to
 /// [`LS_REFINE_BINS`] bins the winner is refined further by 16 golden steps on the
 /// count-weighted fit of harmonics and a cubic (the trend fitted jointly, not removed first, so it cannot bias the period) at the
 /// bins' mean positions (which weighs and places bins as the raw samples do: where the path

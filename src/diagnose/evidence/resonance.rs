@@ -319,8 +319,9 @@ pub struct Ringing {
 }
 
 /// Standard errors the dip and the overshoot after it must each reach for a ringing to
-/// count. Set on the independent seed 1: a clean record's average shows a one-sided dip of
-/// up to ~4 standard errors and no overshoot.
+/// count: a dip alone is what a loop's own settling leaves after a step; a spring's ringing
+/// has both, and six and four standard errors are far in the Gaussian tails (the report's
+/// flag; a signature orders and skips, never names).
 pub const RINGING_T: (f64, f64) = (6.0, 4.0);
 
 /// Steps of `acc` (one sample to the next) at least this share of its largest step.
@@ -381,9 +382,7 @@ pub fn ringing(y: &[f64], acc: &[f64], dt_s: f64, window_s: f64) -> Option<Ringi
     // The overshoot that best pairs with a dip before it (each judged against its own
     // threshold of [`RINGING_T`]), not the window's deepest dip: within the window the
     // command's next step (the end of the ramp) brings a dip of its own, which can be
-    // deeper than the first and has no overshoot left after it (independent seed 3030
-    // case_043: the payload's dip at 11 ms and overshoot at 26 ms, then the next step's
-    // dip at 45 ms).
+    // deeper than the first and has no overshoot left after it.
     let mut best: Option<(f64, usize, usize)> = None;
     let mut k_min = 0usize;
     for k in 1..win {

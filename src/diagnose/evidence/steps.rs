@@ -43,9 +43,7 @@ pub fn steps(y: &[f64], min_gap: usize, min_significance: f64, max_steps: usize)
 
 /// [`steps`] with the last step allowed as close as `end_gap` samples to y's end (at most
 /// `min_gap`). A diagnosis extrapolates the last level into the held-out part that follows
-/// the end, so a change shortly before the end decides that level (2323–3434 case_062:
-/// a step 0.28 s before the fitting part's end, past the 0.5 s gap, left the held-out part
-/// at the level before it).
+/// the end, so a change shortly before the end decides that level.
 pub fn steps_to_end(
     y: &[f64],
     min_gap: usize,
