@@ -344,7 +344,7 @@ mod tests {
     fn a_consistent_gain_wins_unless_the_floor_is_larger() {
         let base = eval(
             (0..2000)
-                .map(|k| if k.is_multiple_of(2) { 1.0 } else { -1.0 })
+                .map(|k: usize| if k.is_multiple_of(2) { 1.0 } else { -1.0 })
                 .collect(),
         );
         let half = eval(base.hold_pos.iter().map(|v| 0.5 * v).collect());
