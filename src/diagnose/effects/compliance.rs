@@ -169,15 +169,13 @@ impl Candidate for Compliance {
     }
 
     fn variants(&self, ctx: &Context, ev: &Evidence) -> Result<Vec<Variant>, DiagnoseError> {
-        let mut starts = vec![
-            vec![2.0, 1500.0, 0.3],
-            vec![10.0, 4000.0, 0.3],
-            vec![50.0, 10000.0, 0.3],
-        ];
-        if ev.hint.len() == 3 {
-            starts.insert(0, ev.hint.clone());
-            starts.truncate(2);
-        }
+        // Two starts: a resonance's own figures and a middling spring, or a soft and a stiff
+        // one (each start is a whole solve of a spring's slower replays).
+        let starts = if ev.hint.len() == 3 {
+            vec![ev.hint.clone(), vec![10.0, 4000.0, 0.3]]
+        } else {
+            vec![vec![3.0, 2000.0, 0.3], vec![30.0, 8000.0, 0.3]]
+        };
         let defs = Effect::Compliance.params();
         let screw = Variant::params(
             "screw",
@@ -192,6 +190,7 @@ impl Candidate for Compliance {
         let m = ctx.base.model.axis.drive.total_mass_kg();
         let hard: Vec<Vec<f64>> = starts
             .iter()
+            .take(1)
             .map(|s| {
                 // Hardening from the deflection under 1 m/s².
                 let d1 = s[2] * m / s[0].max(1e-9);

@@ -22,6 +22,8 @@ const MAX_KNOTS: usize = 400;
 /// Weight of the second-difference penalty of a table, per unit of the mean number of
 /// samples per knot: keeps knots that few samples see close to their neighbours.
 const SMOOTHING: f64 = 0.05;
+/// Samples the period is sharpened on at most (see `lead_period`).
+const SHARPEN_ROWS: usize = 8192;
 /// Commanded speed below which a sample counts as at rest in the direction term, m/s.
 const DIR_SPEED_MPS: f64 = 1e-3;
 
@@ -101,7 +103,12 @@ fn lead_period(ctx: &Context) -> Option<evidence::PositionPeriodic> {
             (a.min(v), b.max(v))
         });
     let span = (3.0 * found.period_m / (hi - lo)).min(0.05);
-    let found = evidence::sharpen_period(&found, &x, &y, span, 41);
+    // The period is sharpened on at most this many of the samples: its 57 harmonic fits
+    // are most of the search, and a few thousand passes over the pitch fix it as well.
+    let stride = x.len().div_ceil(SHARPEN_ROWS).max(1);
+    let xs: Vec<f64> = x.iter().step_by(stride).copied().collect();
+    let ys: Vec<f64> = y.iter().step_by(stride).copied().collect();
+    let found = evidence::sharpen_period(&found, &xs, &ys, span, 41);
     let mut p = evidence::refit_at_period(&found, &sig.pos_m[..n], &sig.r_pos[..n])?;
     p.explained = found.explained;
     Some(p)

@@ -122,7 +122,10 @@ impl Candidate for Growth {
             "heat per metre travelled, lost to the surroundings with a time constant",
             Effect::ThermalGrowth.params(),
             set_growth,
-            vec![h.clone(), vec![h[0], 60.0, h[2]], vec![h[0], 600.0, h[2]]],
+            vec![
+                h.clone(),
+                vec![h[0], if h[1] > 200.0 { 60.0 } else { 600.0 }, h[2]],
+            ],
         );
         v.slow = true;
         Ok(vec![v])
