@@ -96,9 +96,9 @@ pub struct Cli {
     /// With no command: open the workbench on this preset instead of the saved session.
     #[arg(long, global = false)]
     pub preset: Option<PathBuf>,
-    /// With no command: start the model running.
+    /// With no command: open with the model paused (it runs from the first frame otherwise).
     #[arg(long)]
-    pub run: bool,
+    pub paused: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -343,7 +343,7 @@ pub enum CalibrateCmd {
 
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        None => open_gui(cli.preset, cli.run),
+        None => open_gui(cli.preset, cli.paused),
         Some(Command::Simulate {
             preset,
             program,
@@ -517,7 +517,7 @@ pub fn error_text(e: &anyhow::Error) -> String {
     text
 }
 
-fn open_gui(preset: Option<PathBuf>, run: bool) -> Result<()> {
+fn open_gui(preset: Option<PathBuf>, paused: bool) -> Result<()> {
     let has_display =
         std::env::var_os("DISPLAY").is_some() || std::env::var_os("WAYLAND_DISPLAY").is_some();
     if !has_display {
@@ -529,7 +529,7 @@ fn open_gui(preset: Option<PathBuf>, run: bool) -> Result<()> {
              axisbench --help"
         );
     }
-    crate::app::run(preset, run)
+    crate::app::run(preset, paused)
 }
 
 /// Loads a preset and applies `--set` overrides in order.

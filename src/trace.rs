@@ -98,6 +98,19 @@ pub enum TraceError {
         /// What is wrong.
         reason: String,
     },
+    /// The header is not a TRACE_FORMAT header (no `t[s]`, or a column that is not
+    /// signal[unit]) and no mapping was given: a foreign layout. Carries the columns found,
+    /// so the caller can say which mapping reads them.
+    #[error(
+        "{file}: the columns {} are not a TRACE_FORMAT trace (it needs t[s] and axis.signal[unit] columns): give a column mapping (--map, or a preset whose diagnose.mapping reads them)",
+        quote(&.columns.join(", "), 400)
+    )]
+    Foreign {
+        /// The file.
+        file: String,
+        /// The header's columns, in file order.
+        columns: Vec<String>,
+    },
     /// The file is larger than a trace may be ([`MAX_TRACE_ROWS`], [`MAX_TRACE_VALUES`]).
     #[error("{file}: {reason}")]
     TooLarge {
@@ -151,7 +164,7 @@ fn render_rows(file: &str, findings: &[Finding], omitted: usize) -> String {
 }
 
 /// `s`, cut to `max` characters with an ellipsis, for quoting file text in a message.
-fn quote(s: &str, max: usize) -> String {
+pub(crate) fn quote(s: &str, max: usize) -> String {
     match s.char_indices().nth(max) {
         Some((i, _)) => format!("{}…", &s[..i]),
         None => s.to_owned(),

@@ -179,3 +179,70 @@ mod tests {
         assert!((force_per_torque(0.01) - 628.318_530_717_958_6).abs() < 1e-9);
     }
 }
+
+/// The symbol a unit is shown with: the file spellings of TRACE_FORMAT and presets (`um`,
+/// `N*m`, `N*s/m`, `degC`) as SI writes them (µm, N·m, N·s/m, °C). Everything a user reads
+/// goes through here, so one unit never appears in two spellings.
+pub fn symbol(unit: &str) -> String {
+    match unit {
+        "um" => "µm".to_owned(),
+        "degC" => "°C".to_owned(),
+        "um/s" => "µm/s".to_owned(),
+        u => u.replace('*', "·"),
+    }
+}
+
+/// Significant digits a value is shown with.
+const SIG_DIGITS: i32 = 4;
+
+/// A number at a precision that fits its size: [`SIG_DIGITS`] significant digits, plain
+/// notation from 1e-4 to 1e7, no trailing zeros after the point (160.6, 0.6021, 20.07),
+/// an exponent outside; "—" for a value that is not finite.
+pub fn fmt_num(v: f64) -> String {
+    if !v.is_finite() {
+        return "—".to_owned();
+    }
+    if v == 0.0 {
+        return "0".to_owned();
+    }
+    let mag = v.abs().log10().floor() as i32;
+    if !(-4..7).contains(&mag) {
+        return format!("{v:.*e}", (SIG_DIGITS - 1) as usize);
+    }
+    let decimals = (SIG_DIGITS - 1 - mag).max(0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_owned()
+    } else {
+        s
+    }
+}
+
+/// A value with its unit symbol, e.g. `fmt_qty(20.07, "N")` → "20.07 N".
+pub fn fmt_qty(v: f64, unit: &str) -> String {
+    let sym = symbol(unit);
+    if sym.is_empty() {
+        fmt_num(v)
+    } else {
+        format!("{} {sym}", fmt_num(v))
+    }
+}
+
+#[cfg(test)]
+mod fmt_tests {
+    use super::*;
+
+    #[test]
+    fn numbers_show_four_significant_digits_and_si_symbols() {
+        assert_eq!(fmt_num(160.6170160), "160.6");
+        assert_eq!(fmt_num(20.07), "20.07");
+        assert_eq!(fmt_num(0.602134), "0.6021");
+        assert_eq!(fmt_num(8227.0), "8227");
+        assert_eq!(fmt_num(-1.5e-6), "-1.500e-6");
+        assert_eq!(fmt_num(f64::NAN), "—");
+        assert_eq!(fmt_qty(9.5, "um"), "9.5 µm");
+        assert_eq!(fmt_qty(0.14, "N*m"), "0.14 N·m");
+        assert_eq!(fmt_qty(300.0, "N*s/m"), "300 N·s/m");
+        assert_eq!(fmt_qty(3.0, ""), "3");
+    }
+}

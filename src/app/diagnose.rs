@@ -3,6 +3,7 @@
 //! residual lies, which effect explains it, and apply the fitted effect to the preset.
 
 use super::Workbench;
+use axisbench::units::{fmt_num, fmt_qty};
 use axisbench::diagnose::{self, Options, Progress, Report, regimes::Regime, replay::Record};
 use eframe::egui;
 use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points, Polygon};
@@ -17,13 +18,59 @@ pub struct DiagJob {
     pub result: Arc<Mutex<Option<Result<Report, String>>>>,
 }
 
+/// What a result was computed on: the scenario or file and the preset with every edit, so
+/// it is never applied to another machine.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Basis {
+    /// The scenario or file name shown in the title.
+    pub origin: String,
+    /// The preset as RON when the computation started.
+    pub preset_ron: String,
+}
+
+impl Basis {
+    pub fn of(wb: &Workbench) -> Basis {
+        Basis {
+            origin: wb.path.as_ref().map_or(wb.origin.clone(), |p| p.display().to_string()),
+            preset_ron: wb.preset.to_ron().unwrap_or_default(),
+        }
+    }
+
+    /// Why a result on this basis may not be applied to the workbench as it is now; None
+    /// when it still belongs to it.
+    pub fn stale(&self, wb: &Workbench) -> Option<String> {
+        let now = Basis::of(wb);
+        if now.origin != self.origin {
+            return Some(format!(
+                "computed on {}, and the workbench now holds {}: run it again to apply",
+                self.origin, now.origin
+            ));
+        }
+        if now.preset_ron != self.preset_ron {
+            let n = axisbench::Preset::from_ron(&self.preset_ron, "basis")
+                .map(|p| p.diff(&wb.preset).len())
+                .unwrap_or(0);
+            return Some(format!(
+                "the preset was edited since it was computed ({n} fields): run it again to apply"
+            ));
+        }
+        None
+    }
+}
+
 #[derive(Default)]
 pub struct DiagState {
     pub trace_path: String,
     pub validate_path: String,
     pub holdout: f64,
     pub job: Option<DiagJob>,
+    /// The job's basis while it runs.
+    pub job_basis: Option<Basis>,
+    /// The last report, and what it was computed on.
     pub report: Option<Report>,
+    pub basis: Option<Basis>,
+    /// Whether the report on screen was applied.
+    pub applied: bool,
     pub error: Option<String>,
 }
 
@@ -92,6 +139,7 @@ impl Workbench {
             }
         });
         self.diag.job = Some(job);
+        self.diag.job_basis = Some(Basis::of(self));
     }
 
     /// Takes a finished job's result.
@@ -105,8 +153,10 @@ impl Workbench {
             self.diag.job = None;
             match r {
                 Ok(rep) => {
-                    self.status = format!("diagnosis: {}", rep.verdict);
+                    self.status = format!("diagnosis: {}", rep.summary);
                     self.diag.report = Some(rep);
+                    self.diag.basis = self.diag.job_basis.take();
+                    self.diag.applied = false;
                 }
                 Err(e) => self.diag.error = Some(e),
             }
@@ -122,8 +172,29 @@ impl Workbench {
         }
     }
 
-    /// "Apply to model": the preset takes the fitted effects; the user saves as usual.
+    /// Why the diagnosis on screen cannot be applied now (no result, no effect, or
+    /// computed on another preset or before an edit); None when Apply may go ahead.
+    pub fn diagnosis_not_applicable(&self) -> Option<String> {
+        let rep = self.diag.report.as_ref()?;
+        if rep.selected.is_empty() || rep.fitted.is_none() {
+            return Some("no effect was named: nothing to apply".into());
+        }
+        if self.diag.applied {
+            return Some("applied already (Undo restores the values before it)".into());
+        }
+        match &self.diag.basis {
+            Some(b) => b.stale(self),
+            None => Some("the result's preset is unknown: run it again to apply".into()),
+        }
+    }
+
+    /// "Apply to model": the preset takes the fitted effects (only onto the preset they
+    /// were fitted on); the previous preset is one Undo away; the user saves as usual.
     pub fn apply_diagnosis(&mut self) {
+        if let Some(why) = self.diagnosis_not_applicable() {
+            self.status = format!("not applied: {why}");
+            return;
+        }
         let Some(fitted) = self.diag.report.as_ref().and_then(|r| r.fitted.clone()) else {
             return;
         };
@@ -133,17 +204,17 @@ impl Workbench {
             .as_ref()
             .map(|r| r.selected.join(" + "))
             .unwrap_or_default();
-        let applied = self.live.lock().machine.apply_params(&fitted);
-        self.preset = fitted;
-        self.fields.clear();
-        if applied.is_err() {
-            self.reset();
-        }
-        self.status = format!("applied to the model: {added} (save the preset to keep it)");
+        let n = self.preset.diff(&fitted).len();
+        self.replace_preset(fitted, format!("diagnosis: {added}"));
+        self.diag.applied = true;
+        self.status = format!(
+            "applied to the model: {added}, {n} fields changed (Undo restores them; save the preset to keep it)"
+        );
     }
 }
 
-fn regime_color(r: Regime) -> egui::Color32 {
+/// A regime's colour, at opacity `alpha`; the legend and the shading use the same one.
+fn regime_color(r: Regime, alpha: u8) -> egui::Color32 {
     let c = match r {
         Regime::ReversalPosToNeg => (220, 60, 60),
         Regime::ReversalNegToPos => (60, 90, 220),
@@ -152,8 +223,14 @@ fn regime_color(r: Regime) -> egui::Color32 {
         Regime::ConstantFeed => (60, 170, 90),
         Regime::Standstill => (128, 128, 128),
     };
-    egui::Color32::from_rgba_unmultiplied(c.0, c.1, c.2, 40)
+    egui::Color32::from_rgba_unmultiplied(c.0, c.1, c.2, alpha)
 }
+
+/// Shading opacity of the regimes behind the residual.
+const SHADE_ALPHA: u8 = 60;
+/// The residual lines' colours: outside the regime palette, the same on every run.
+const NOMINAL_COLOR: egui::Color32 = egui::Color32::from_rgb(235, 235, 235);
+const FITTED_COLOR: egui::Color32 = egui::Color32::from_rgb(0, 200, 210);
 
 pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     wb.poll_diagnosis();
@@ -181,24 +258,22 @@ fn records_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         let l = ui.label("Measured record");
         ui.add(egui::TextEdit::singleline(&mut wb.diag.trace_path).desired_width(320.0))
             .labelled_by(l.id);
-        if ui.button("Browse record…").clicked()
-            && let Some(p) = rfd::FileDialog::new()
-                .add_filter("CSV", &["csv"])
-                .pick_file()
-        {
-            wb.diag.trace_path = p.display().to_string();
+        if ui.button("Browse record…").clicked() {
+            match rfd::FileDialog::new().add_filter("CSV", &["csv"]).pick_file() {
+                Some(p) => wb.diag.trace_path = p.display().to_string(),
+                None => wb.status = super::no_dialog("Measured record"),
+            }
         }
     });
     ui.horizontal(|ui| {
         let l = ui.label("Validation record");
         ui.add(egui::TextEdit::singleline(&mut wb.diag.validate_path).desired_width(320.0))
             .labelled_by(l.id);
-        if ui.button("Browse validation…").clicked()
-            && let Some(p) = rfd::FileDialog::new()
-                .add_filter("CSV", &["csv"])
-                .pick_file()
-        {
-            wb.diag.validate_path = p.display().to_string();
+        if ui.button("Browse validation…").clicked() {
+            match rfd::FileDialog::new().add_filter("CSV", &["csv"]).pick_file() {
+                Some(p) => wb.diag.validate_path = p.display().to_string(),
+                None => wb.status = super::no_dialog("Validation record"),
+            }
         }
         ui.label("held out without one:");
         ui.add(
@@ -231,19 +306,62 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         } else if ui.button("Run diagnosis").clicked() {
             wb.start_diagnosis();
         }
-        let can_apply = wb
-            .diag
-            .report
-            .as_ref()
-            .is_some_and(|r| !r.selected.is_empty());
-        if ui
-            .add_enabled(can_apply, egui::Button::new("Apply to model"))
-            .on_hover_text("Add the selected effects with their fitted parameters to the preset")
-            .clicked()
-        {
+        let why_not = wb.diagnosis_not_applicable();
+        let r = ui
+            .add_enabled(
+                wb.diag.report.is_some() && why_not.is_none(),
+                egui::Button::new("Apply to model"),
+            )
+            .on_hover_text("Add the named effects with their fitted parameters to the preset");
+        if r.clicked() {
             wb.apply_diagnosis();
         }
+        if let Some((what, _)) = wb.undo.last() {
+            let what = what.clone();
+            if ui
+                .button("Undo apply")
+                .on_hover_text(format!("restore the preset before: {what}"))
+                .clicked()
+            {
+                wb.undo_apply();
+            }
+        }
     });
+    if wb.diag.report.is_some() {
+        match wb.diagnosis_not_applicable() {
+            Some(why) => {
+                ui.colored_label(
+                    egui::Color32::from_rgb(230, 160, 60),
+                    format!("Apply is off: {why}"),
+                );
+            }
+            None => apply_diff_ui(wb, ui),
+        }
+    }
+}
+
+/// What Apply will change, field by field.
+fn apply_diff_ui(wb: &Workbench, ui: &mut egui::Ui) {
+    let Some(fitted) = wb.diag.report.as_ref().and_then(|r| r.fitted.as_ref()) else {
+        return;
+    };
+    let diff = wb.preset.diff(fitted);
+    egui::CollapsingHeader::new(format!("Apply will change {} fields", diff.len()))
+        .id_salt("apply-diff")
+        .show(ui, |ui| {
+            egui::Grid::new("apply-diff-grid").striped(true).show(ui, |ui| {
+                ui.strong("field");
+                ui.strong("now");
+                ui.strong("after Apply");
+                ui.end_row();
+                for c in &diff {
+                    ui.label(&c.path);
+                    ui.label(&c.before);
+                    ui.label(&c.after);
+                    ui.end_row();
+                }
+            });
+        });
 }
 
 /// The verdict line.
@@ -263,20 +381,14 @@ fn summary_ui(rep: &Report, ui: &mut egui::Ui) {
             ),
         );
     }
-    ui.horizontal(|ui| {
-        ui.strong(format!("Verdict: {}", rep.verdict));
-        if rep.verdict == "none" {
-            ui.label("(no unmodelled effect beyond the calibration)");
-        } else {
-            ui.label(format!(
-                "added: {}   held-out residual {:.2} -> {:.2} um ({:.0} % shrink)",
-                rep.selected.join(" + "),
-                rep.overall.rms_before,
-                rep.overall.rms_after,
-                rep.shrink * 100.0
-            ));
-        }
-    });
+    ui.strong(&rep.summary);
+    ui.label(
+        egui::RichText::new(format!(
+            "shrink (here, in the ranking and in the JSON): of {}",
+            rep.shrink_of
+        ))
+        .small(),
+    );
     for e in rep
         .ranking
         .iter()
@@ -301,7 +413,7 @@ fn tables_ui(rep: &Report, ui: &mut egui::Ui, full_w: f32) {
                     .striped(true)
                     .show(ui, |ui| {
                         ui.strong("effect");
-                        ui.strong("shrink");
+                        ui.strong("held-out shrink");
                         ui.strong("parameters");
                         ui.strong("signature");
                         ui.end_row();
@@ -316,7 +428,7 @@ fn tables_ui(rep: &Report, ui: &mut egui::Ui, full_w: f32) {
                                 .params
                                 .iter()
                                 .filter(|(k, _)| !k.starts_with("calibration_"))
-                                .map(|(k, v)| format!("{k}={v:.4}"))
+                                .map(|(k, v)| format!("{k} = {}", fmt_num(*v)))
                                 .collect();
                             ui.label(p.join(" "));
                             let mark = if e.evidence_pass { "yes" } else { "no" };
@@ -327,15 +439,21 @@ fn tables_ui(rep: &Report, ui: &mut egui::Ui, full_w: f32) {
             });
         egui::Grid::new("regime_grid").striped(true).show(ui, |ui| {
             ui.strong("regime");
-            ui.strong("share");
-            ui.strong("rms um");
-            ui.strong("after");
+            ui.strong("share of Σr² (nominal)");
+            ui.strong("RMS nominal");
+            ui.strong("RMS with effects");
+            ui.strong("share left");
             ui.end_row();
             for (g, c) in rep.regimes.iter().zip(&rep.per_regime) {
-                ui.label(&g.name);
+                let color = Regime::ALL
+                    .iter()
+                    .find(|r| r.name() == g.name)
+                    .map_or(ui.visuals().text_color(), |r| regime_color(*r, 255));
+                ui.colored_label(color, g.name.replace('_', " "));
                 ui.label(format!("{:.1} %", g.share * 100.0));
-                ui.label(format!("{:.3}", g.rms));
-                ui.label(format!("{:.3}", c.rms_after));
+                ui.label(fmt_qty(g.rms, "um"));
+                ui.label(fmt_qty(c.rms_after, "um"));
+                ui.label(format!("{:.1} %", c.share_after * 100.0));
                 ui.end_row();
             }
         });
@@ -358,7 +476,7 @@ fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, fu
         .width(w)
         .legend(Legend::default())
         .x_axis_label("t [s]")
-        .y_axis_label("residual [um]")
+        .y_axis_label("residual [µm]")
         .show(ui, |pu| {
             let mut i = 0;
             while i < s.regimes.len() {
@@ -374,8 +492,9 @@ fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, fu
                             r.name(),
                             PlotPoints::new(vec![[t0, lo], [t1, lo], [t1, hi], [t0, hi]]),
                         )
-                        .fill_color(regime_color(r))
-                        .stroke(egui::Stroke::NONE),
+                        .fill_color(regime_color(r, SHADE_ALPHA))
+                        // No outline; its colour is what the legend shows.
+                        .stroke(egui::Stroke::new(0.0, regime_color(r, SHADE_ALPHA))),
                     );
                 }
                 i = j + 1;
@@ -388,8 +507,8 @@ fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, fu
                         .collect(),
                 )
             };
-            pu.line(Line::new("nominal", pts(&s.before_um)));
-            pu.line(Line::new("with fitted effects", pts(&s.after_um)));
+            pu.line(Line::new("nominal", pts(&s.before_um)).color(NOMINAL_COLOR));
+            pu.line(Line::new("with fitted effects", pts(&s.after_um)).color(FITTED_COLOR));
         });
     ui.horizontal(|ui| {
         let w0 = 0.5 * full_w - 6.0;
@@ -397,7 +516,7 @@ fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, fu
             .height(h * 0.4)
             .width(w0)
             .x_axis_label("position [mm]")
-            .y_axis_label("residual [um]")
+            .y_axis_label("residual [µm]")
             .show(ui, |pu| {
                 let pts: Vec<[f64; 2]> = (0..s.pos_mm.len())
                     .step_by(step)
@@ -410,7 +529,7 @@ fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, fu
             .height(h * 0.4)
             .width(w1)
             .x_axis_label("t [s]")
-            .y_axis_label("rms residual [um]")
+            .y_axis_label("RMS residual [µm]")
             .show(ui, |pu| {
                 let bars: Vec<Bar> = rep
                     .time_bins

@@ -16,7 +16,7 @@ use axisbench::measure;
 use axisbench::preset::comp::Reversal;
 use axisbench::preset::fields::{Field, FieldsDyn, Num, TableSpec, Visitor, Walker, short};
 use axisbench::preset::{AxisParams, Preset};
-use axisbench::units::{m_to_mm, m_to_um, s_to_ms};
+use axisbench::units::{m_to_mm, m_to_um, s_to_ms, symbol};
 use eframe::egui;
 
 use super::Workbench;
@@ -38,6 +38,8 @@ struct Form<'a> {
     changed: Option<String>,
     /// A typed value that does not parse: (path, message).
     parse_error: Option<(String, String)>,
+    /// Fields whose error is void (the value in force was typed again).
+    cleared: Vec<String>,
 }
 
 impl Form<'_> {
@@ -68,6 +70,7 @@ impl Form<'_> {
     /// A text field committed on Enter or when it loses focus; returns the committed text.
     fn text_ui(&mut self, path: &str, label: &str, unit: &str, shown: String) -> Option<String> {
         let mut out = None;
+        let mut cleared = false;
         let bufs = &mut *self.bufs;
         let errors = self.errors;
         self.ui.horizontal(|ui| {
@@ -77,17 +80,26 @@ impl Form<'_> {
                 .add(egui::TextEdit::singleline(buf).desired_width(90.0))
                 .labelled_by(l.id)
                 .on_hover_text(path);
-            ui.label(unit);
+            ui.label(symbol(unit));
             let commit =
                 r.lost_focus() || (r.has_focus() && ui.input(|i| i.key_pressed(egui::Key::Enter)));
-            // Follow the model (a load, a wizard, an edit elsewhere) only while the user is
-            // not typing here and has no pending error to read.
-            if commit && *buf != shown {
+            // The field shows the value in force whenever the user is not typing in it: a
+            // refused value leaves with its error message, which names it, and a load, a
+            // wizard or an edit elsewhere shows at once.
+            if commit && buf.trim() != shown {
                 out = Some(buf.trim().to_owned());
-            } else if !commit && !r.has_focus() && !errors.contains_key(path) && *buf != shown {
+            } else if commit {
+                // The value in force typed again: nothing is refused any more.
+                if errors.contains_key(path) {
+                    cleared = true;
+                }
+            } else if !r.has_focus() && *buf != shown {
                 *buf = shown;
             }
         });
+        if cleared {
+            self.cleared.push(path.to_owned());
+        }
         out
     }
 
@@ -128,7 +140,8 @@ impl Form<'_> {
     fn table_ui(&mut self, path: &str, label: &str, t: &mut Vec<(f64, f64)>, spec: TableSpec) {
         let l = self.ui.label(format!(
             "{label} ({}, {}), one point per line:",
-            spec.x.unit, spec.y.unit
+            symbol(spec.x.unit),
+            symbol(spec.y.unit)
         ));
         let key = format!("{path}#table");
         let buf = self.bufs.entry(key.clone()).or_insert_with(|| {
@@ -237,7 +250,9 @@ impl Workbench {
             } else {
                 mine.join("; ")
             };
-            self.field_errors.insert(path.to_owned(), msg);
+            self.field_errors
+                .insert(path.to_owned(), format!("refused: {msg} (the value shown stays in force)"));
+            self.fields.remove(path);
             return false;
         }
         self.field_errors.remove(path);
@@ -274,11 +289,17 @@ impl Workbench {
             heading: at.to_owned(),
             changed: None,
             parse_error: None,
+            cleared: vec![],
         };
         section.walk(&mut Walker::new(at, &mut form));
         let (changed, parse_error) = (form.changed, form.parse_error);
+        for p in form.cleared {
+            self.field_errors.remove(&p);
+        }
         if let Some((path, msg)) = parse_error {
-            self.field_errors.insert(path, msg);
+            self.fields.remove(&path);
+            self.field_errors
+                .insert(path, format!("refused: {msg} (the value shown stays in force)"));
         }
         if let Some(path) = changed {
             self.commit(cand, &path);

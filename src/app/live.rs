@@ -16,6 +16,99 @@ const RING_CAP: usize = 480_000;
 /// Longest the rolling window can be, s.
 pub const MAX_WINDOW_S: f64 = 60.0;
 
+/// Buckets of the whole-run history per signal: a 2 h run at 8 kHz in 4096 columns.
+const HISTORY_BUCKETS: usize = 4096;
+/// Width of a history bucket at the start of a run, s (doubles as the run outgrows them).
+const HISTORY_START_WIDTH_S: f64 = 0.01;
+
+/// A min/max history of the whole run, per signal, in a bounded number of time buckets:
+/// when the run outgrows them, neighbours merge and the width doubles, so memory stays
+/// fixed however long the run (a 2 h warm-up shows its trend).
+#[derive(Default)]
+pub struct History {
+    /// Width of one bucket, s.
+    pub width_s: f64,
+    /// Per signal, per bucket: (min, max); (∞, −∞) for a bucket without samples.
+    lo: Vec<Vec<f64>>,
+    hi: Vec<Vec<f64>>,
+}
+
+impl History {
+    fn reset(&mut self, signals: usize) {
+        self.width_s = HISTORY_START_WIDTH_S;
+        self.lo = vec![Vec::new(); signals];
+        self.hi = vec![Vec::new(); signals];
+    }
+
+    /// Adds one row (`t_s` and every signal's value).
+    fn push(&mut self, t_s: f64, row: impl Iterator<Item = f64>) {
+        if !t_s.is_finite() || t_s < 0.0 || self.width_s <= 0.0 {
+            return;
+        }
+        let mut b = (t_s / self.width_s) as usize;
+        while b >= HISTORY_BUCKETS {
+            self.merge();
+            b = (t_s / self.width_s) as usize;
+        }
+        for ((lo, hi), v) in self.lo.iter_mut().zip(self.hi.iter_mut()).zip(row) {
+            while lo.len() <= b {
+                lo.push(f64::INFINITY);
+                hi.push(f64::NEG_INFINITY);
+            }
+            if v.is_finite() {
+                lo[b] = lo[b].min(v);
+                hi[b] = hi[b].max(v);
+            }
+        }
+    }
+
+    /// Merges neighbouring buckets: half as many, twice as wide.
+    fn merge(&mut self) {
+        for (lo, hi) in self.lo.iter_mut().zip(self.hi.iter_mut()) {
+            *lo = lo.chunks(2).map(|c| c.iter().copied().fold(f64::INFINITY, f64::min)).collect();
+            *hi = hi
+                .chunks(2)
+                .map(|c| c.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+                .collect();
+        }
+        self.width_s *= 2.0;
+    }
+
+    /// Signal `i` as plot points, at most two per pixel column of `width_px`: each
+    /// column's minimum then maximum, shown through `show`.
+    pub fn points(&self, i: usize, width_px: usize, show: fn(f64) -> f64) -> Vec<[f64; 2]> {
+        let (Some(lo), Some(hi)) = (self.lo.get(i), self.hi.get(i)) else {
+            return vec![];
+        };
+        let group = lo.len().div_ceil(width_px.max(1)).max(1);
+        let w = self.width_s * group as f64;
+        lo.chunks(group)
+            .zip(hi.chunks(group))
+            .enumerate()
+            .flat_map(|(k, (l, h))| {
+                let mn = l.iter().copied().fold(f64::INFINITY, f64::min);
+                let mx = h.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                let t0 = k as f64 * w;
+                (mn.is_finite() && mx.is_finite())
+                    .then(|| [[t0 + 0.25 * w, show(mn)], [t0 + 0.75 * w, show(mx)]])
+                    .into_iter()
+                    .flatten()
+            })
+            .collect()
+    }
+
+    /// Signal `i` near `t_s`: the middle of its bucket's range (the history keeps no more).
+    pub fn value_at(&self, i: usize, t_s: f64) -> Option<f64> {
+        let b = (t_s / self.width_s).floor();
+        if !(b >= 0.0) {
+            return None;
+        }
+        let b = b as usize;
+        let (l, h) = (*self.lo.get(i)?.get(b)?, *self.hi.get(i)?.get(b)?);
+        (l.is_finite() && h.is_finite()).then_some(0.5 * (l + h))
+    }
+}
+
 /// The last samples of every trace signal, oldest first.
 #[derive(Default)]
 pub struct Ring {
@@ -36,8 +129,18 @@ impl Ring {
         self.counter = 0;
     }
 
-    /// Moves the machine's new trace rows into the ring.
-    fn take_from(&mut self, m: &mut Machine) {
+    /// Whether no sample has arrived since the last reset.
+    pub fn is_empty(&self) -> bool {
+        self.cols.first().is_none_or(VecDeque::is_empty)
+    }
+
+    /// The position of column `name`.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.names.iter().position(|n| n == name)
+    }
+
+    /// Moves the machine's new trace rows into the ring and the whole-run history.
+    fn take_from(&mut self, m: &mut Machine, hist: &mut History) {
         let same = self.names.len() == m.trace.signals.len()
             && self
                 .names
@@ -46,9 +149,13 @@ impl Ring {
                 .all(|(n, s)| *n == s.name);
         if !same {
             self.relayout(m);
+            hist.reset(self.names.len());
         }
         let rows = m.trace.len();
         for r in 0..rows {
+            if let Some(t) = m.trace.signals.first().map(|s| s.data[r]) {
+                hist.push(t, m.trace.signals.iter().map(|s| s.data[r]));
+            }
             self.counter += 1;
             if self.counter < self.keep_every {
                 continue;
@@ -108,6 +215,8 @@ pub struct Shared {
     /// Machine time per wall time.
     pub speed: f64,
     pub ring: Ring,
+    /// The whole run, decimated.
+    pub history: History,
     /// Steps still to run while paused (the Step button).
     pub steps_pending: u64,
     /// Fractional steps carried between worker rounds.
@@ -138,7 +247,7 @@ impl Shared {
             self.fault = Some(e.to_string());
             return;
         }
-        self.ring.take_from(&mut self.machine);
+        self.ring.take_from(&mut self.machine, &mut self.history);
     }
 }
 
@@ -151,12 +260,15 @@ impl Live {
     pub fn new(machine: Machine) -> Live {
         let mut ring = Ring::default();
         ring.relayout(&machine);
+        let mut history = History::default();
+        history.reset(ring.names.len());
         Live {
             shared: Arc::new(Mutex::new(Shared {
                 machine,
                 running: false,
                 speed: 1.0,
                 ring,
+                history,
                 steps_pending: 0,
                 carry: 0.0,
                 fault: None,
@@ -178,6 +290,8 @@ impl Live {
     pub fn replace(&self, machine: Machine) {
         let mut s = self.lock();
         s.ring.relayout(&machine);
+        let n = s.ring.names.len();
+        s.history.reset(n);
         s.machine = machine;
         s.carry = 0.0;
         s.steps_pending = 0;

@@ -8,6 +8,7 @@ mod diagnose;
 mod edit;
 mod live;
 mod plots;
+mod scope;
 mod session;
 #[cfg(test)]
 mod tests;
@@ -27,6 +28,14 @@ use axisbench::{Machine, Trace};
 
 pub use live::Live;
 
+/// What a browse button says when no file was chosen: where no file dialog answers (no
+/// portal, a bare X server) the path field is the way in.
+pub fn no_dialog(field: &str) -> String {
+    format!(
+        "no file chosen (if no file dialog opened, none is available here: type the path into the {field} field)"
+    )
+}
+
 /// The label of a target's export button.
 pub fn export_label(t: Target) -> String {
     format!("Export {}", t.name())
@@ -39,6 +48,25 @@ pub enum Tab {
     Sag,
     Compare,
     Diagnose,
+}
+
+/// An action that drops unsaved edits, waiting for the user's answer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Pending {
+    /// Load a shipped scenario.
+    Scenario(String),
+    /// Open a preset file.
+    Open(PathBuf),
+    /// Close the window.
+    Quit,
+}
+
+/// The answers to "unsaved edits".
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Answer {
+    Save,
+    Discard,
+    Cancel,
 }
 
 /// Result of an A/B run.
@@ -93,7 +121,19 @@ pub struct Workbench {
     png_msg: std::sync::Arc<std::sync::Mutex<Option<String>>>,
     plot_rects: BTreeMap<String, egui::Rect>,
     pub diag: diagnose::DiagState,
+    /// How the time plots are set up (hidden signals, y scales, cursors, whole run).
+    pub scope: scope::ScopeView,
+    /// Presets replaced by an Apply, newest last, each with what replaced it.
+    pub undo: Vec<(String, Preset)>,
+    /// An action waiting for Save / Discard / Cancel.
+    pub pending: Option<Pending>,
+    /// The user agreed to close the window; the next frame closes it.
+    pub close_now: bool,
+    quit_allowed: bool,
 }
+
+/// Applies kept for Undo.
+const MAX_UNDO: usize = 20;
 
 impl Workbench {
     /// A workbench on a shipped preset, without autosave (tests, benchmarks).
@@ -106,7 +146,9 @@ impl Workbench {
             .iter()
             .map(|p| Ok((p.clone(), lp.program_text(p)?)))
             .collect::<Result<Vec<_>>>()?;
-        Workbench::with(lp.preset, programs, None, name.to_owned())
+        let mut wb = Workbench::with(lp.preset, programs, None, name.to_owned())?;
+        wb.apply_scenario_view();
+        Ok(wb)
     }
 
     fn with(
@@ -150,6 +192,11 @@ impl Workbench {
             png_msg: Default::default(),
             plot_rects: BTreeMap::new(),
             diag: diagnose::DiagState::new(),
+            scope: scope::ScopeView::default(),
+            undo: vec![],
+            pending: None,
+            close_now: false,
+            quit_allowed: false,
         })
     }
 
@@ -181,6 +228,127 @@ impl Workbench {
             .axes
             .get(self.axis_sel)
             .map_or_else(|| "x".into(), |a| a.name.clone())
+    }
+
+    /// Does `action` now, or, with unsaved edits, asks first (Save / Discard / Cancel).
+    pub fn request(&mut self, action: Pending) {
+        if self.dirty() {
+            self.pending = Some(action);
+        } else {
+            self.perform(action);
+        }
+    }
+
+    fn perform(&mut self, action: Pending) {
+        match action {
+            Pending::Scenario(n) => self.load_scenario(&n),
+            Pending::Open(p) => self.open_file(p),
+            Pending::Quit => {
+                self.quit_allowed = true;
+                self.close_now = true;
+            }
+        }
+    }
+
+    /// The user's answer to the unsaved-edits question. Save goes ahead only once the
+    /// preset is saved; Cancel keeps everything as it is.
+    pub fn answer(&mut self, a: Answer) {
+        let Some(action) = self.pending.take() else {
+            return;
+        };
+        match a {
+            Answer::Save => {
+                match (self.path.clone(), self.path_input.trim()) {
+                    (Some(p), _) => self.save_to(p),
+                    (None, typed) if !typed.is_empty() => self.save_to(PathBuf::from(typed)),
+                    (None, _) => self.save_as_dialog(),
+                }
+                if self.dirty() {
+                    self.status = format!(
+                        "{}; nothing else was done, your edits are still here",
+                        self.status
+                    );
+                } else {
+                    self.perform(action);
+                }
+            }
+            Answer::Discard => self.perform(action),
+            Answer::Cancel => self.status = "cancelled: your edits are still here".into(),
+        }
+    }
+
+    /// The unsaved-edits question, while an action waits for it.
+    fn pending_ui(&mut self, ctx: &egui::Context) {
+        let Some(action) = self.pending.clone() else {
+            return;
+        };
+        let what = match &action {
+            Pending::Scenario(n) => format!("load scenario {n}"),
+            Pending::Open(p) => format!("open {}", p.display()),
+            Pending::Quit => "quit".to_owned(),
+        };
+        let mut answer = None;
+        let r = egui::Modal::new(egui::Id::unique("unsaved-edits")).show(ctx, |ui| {
+            ui.heading("Unsaved edits");
+            ui.label(format!(
+                "The preset has edits that are not saved. Save them before you {what}?"
+            ));
+            let n = Preset::from_ron(&self.saved_ron, "saved")
+                .map(|p| p.diff(&self.preset).len())
+                .unwrap_or(0);
+            ui.label(format!("{n} fields differ from the saved preset."));
+            ui.horizontal(|ui| {
+                if ui.button("Save").clicked() {
+                    answer = Some(Answer::Save);
+                }
+                if ui.button("Discard").clicked() {
+                    answer = Some(Answer::Discard);
+                }
+                if ui.button("Cancel").clicked() {
+                    answer = Some(Answer::Cancel);
+                }
+            });
+        });
+        if r.should_close() && answer.is_none() {
+            answer = Some(Answer::Cancel);
+        }
+        if let Some(a) = answer {
+            self.answer(a);
+        }
+    }
+
+    /// Replaces the whole preset (an Apply of a diagnosis or a tune), keeping the previous
+    /// one on the undo stack under `what`.
+    pub fn replace_preset(&mut self, new: Preset, what: String) {
+        let old = std::mem::replace(&mut self.preset, new);
+        self.undo.push((what, old));
+        if self.undo.len() > MAX_UNDO {
+            self.undo.remove(0);
+        }
+        self.preset_replaced();
+    }
+
+    /// Undoes the last Apply: the preset before it comes back.
+    pub fn undo_apply(&mut self) {
+        let Some((what, old)) = self.undo.pop() else {
+            self.status = "nothing to undo".into();
+            return;
+        };
+        self.preset = old;
+        self.preset_replaced();
+        self.diag.applied = false;
+        self.status = format!("undone: {what}");
+    }
+
+    /// The running machine takes the new preset (from the next period, or by a reset when
+    /// the change is structural); the field buffers follow it.
+    fn preset_replaced(&mut self) {
+        self.fields.clear();
+        self.field_errors.clear();
+        let applied = self.live.lock().machine.apply_params(&self.preset);
+        if applied.is_err() {
+            self.reset();
+        }
     }
 
     /// Rebuilds the machine from the current preset and programs (Reset).
@@ -274,7 +442,20 @@ impl Workbench {
         self.fields.clear();
         self.field_errors.clear();
         self.compare = None;
+        // Undo restores presets of the machine that was here, not of this one.
+        self.undo.clear();
+        self.apply_scenario_view();
         self.status = status;
+    }
+
+    /// The scenario's own speed, window and view (a 2 h warm-up opens at 1000× with the
+    /// whole run shown); other presets keep what the user set.
+    fn apply_scenario_view(&mut self) {
+        if let Some(v) = assets::scenario(&self.origin) {
+            self.live.lock().speed = v.speed;
+            self.window_s = v.window_s;
+            self.scope.whole_run = v.whole_run;
+        }
     }
 
     /// Saves the preset (atomically) to `path`, with its programs next to it.
@@ -416,16 +597,27 @@ impl Workbench {
 
     /// One frame of the workbench.
     pub fn ui(&mut self, ui: &mut egui::Ui) {
+        let ctx = ui.ctx().clone();
+        if ctx.input(|i| i.viewport().close_requested()) && !self.quit_allowed && self.dirty() {
+            ctx.send_viewport_cmd(egui::ViewportCommand::CancelClose);
+            self.pending = Some(Pending::Quit);
+        }
+        if self.close_now {
+            self.close_now = false;
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+        self.pending_ui(&ctx);
         self.menu_ui(ui);
         egui::Panel::bottom("status").show(ui, |ui| {
             ui.horizontal(|ui| {
-                let (t, mode, running, fault) = {
+                let (t, mode, running, fault, done) = {
                     let s = self.live.lock();
                     (
                         s.machine.t_s(),
                         s.machine.channels.first().map(|c| c.mode),
                         s.running,
                         s.fault.clone(),
+                        s.machine.done(),
                     )
                 };
                 ui.label(format!(
@@ -434,7 +626,13 @@ impl Workbench {
                         Some(preset::Mode::Direct) => "direct command",
                         _ => "normal",
                     },
-                    if running { "running" } else { "paused" }
+                    if running {
+                        "running".to_owned()
+                    } else if done {
+                        format!("program finished at t = {t:.3} s: Reset to run it again")
+                    } else {
+                        "paused".to_owned()
+                    }
                 ));
                 ui.separator();
                 if let Some(f) = fault {
@@ -470,7 +668,7 @@ impl Workbench {
             });
             ui.separator();
             match self.tab {
-                Tab::Time => plots::time_plots_ui(self, ui),
+                Tab::Time => scope::time_plots_ui(self, ui),
                 Tab::Circle => plots::circle_ui(self, ui),
                 Tab::Sag => plots::sag_ui(self, ui),
                 Tab::Compare => plots::compare_ui(self, ui),
@@ -493,11 +691,9 @@ impl Workbench {
                             .add_filter("RON preset", &["ron"])
                             .pick_file()
                         {
-                            self.open_file(p);
+                            self.request(Pending::Open(p));
                         } else {
-                            self.status =
-                                "no file chosen (or no file dialog here: use the Path field)"
-                                    .into();
+                            self.status = no_dialog("Path");
                         }
                         ui.close();
                     }
@@ -515,7 +711,7 @@ impl Workbench {
                     ui.menu_button("Recent", |ui| {
                         for p in self.recent.clone() {
                             if ui.button(p.display().to_string()).clicked() {
-                                self.open_file(p);
+                                self.request(Pending::Open(p));
                                 ui.close();
                             }
                         }
@@ -527,6 +723,8 @@ impl Workbench {
                             .save_file()
                         {
                             self.record_csv(p);
+                        } else {
+                            self.status = no_dialog("Path");
                         }
                         ui.close();
                     }
@@ -536,6 +734,8 @@ impl Workbench {
                             .pick_file()
                         {
                             self.open_trace(p);
+                        } else {
+                            self.status = no_dialog("Path");
                         }
                         ui.close();
                     }
@@ -545,9 +745,7 @@ impl Workbench {
                             if ui.button(format!("{}…", t.title())).clicked() {
                                 match rfd::FileDialog::new().pick_folder() {
                                     Some(dir) => self.export_to(t, dir),
-                                    None => {
-                                        self.status = "no folder chosen (or no file dialog here: use the Path field and the Export buttons)".into()
-                                    }
+                                    None => self.status = no_dialog("Path"),
                                 }
                                 ui.close();
                             }
@@ -558,7 +756,7 @@ impl Workbench {
                     for name in SHIPPED_PRESETS {
                         let note = assets::scenario_note(name);
                         if ui.button(*name).on_hover_text(note).clicked() {
-                            self.load_scenario(name);
+                            self.request(Pending::Scenario((*name).to_owned()));
                             ui.close();
                         }
                     }
@@ -586,7 +784,7 @@ impl Workbench {
         {
             self.save_to(p);
         } else {
-            self.status = "no file chosen (or no file dialog here: use the Path field)".into();
+            self.status = no_dialog("Path");
         }
     }
 
@@ -599,7 +797,7 @@ impl Workbench {
     }
 
     pub fn open_trace(&mut self, path: PathBuf) {
-        match Trace::read_csv(&path, None) {
+        match axisbench::diagnose::read_record(&path, &self.preset, None) {
             Ok(t) => {
                 self.status = format!("opened trace {} ({} samples)", path.display(), t.len());
                 self.loaded_trace = Some((path.display().to_string(), t));
@@ -654,7 +852,7 @@ impl Workbench {
                     }
                 });
             if let Some(n) = chosen {
-                self.load_scenario(n);
+                self.request(Pending::Scenario(n.to_owned()));
             }
         });
         ui.horizontal(|ui| {
@@ -662,7 +860,7 @@ impl Workbench {
             ui.add(egui::TextEdit::singleline(&mut self.path_input).desired_width(160.0))
                 .labelled_by(label.id);
             if ui.button("Open path").clicked() {
-                self.open_file(PathBuf::from(self.path_input.trim()));
+                self.request(Pending::Open(PathBuf::from(self.path_input.trim())));
             }
             if ui.button("Save to path").clicked() {
                 self.save_to(PathBuf::from(self.path_input.trim()));
@@ -901,8 +1099,9 @@ impl eframe::App for App {
     }
 }
 
-/// Opens the workbench window, on `preset` if given, else on the saved session.
-pub fn run(preset: Option<PathBuf>, start: bool) -> Result<()> {
+/// Opens the workbench window, on `preset` if given, else on the saved session; the model
+/// runs from the first frame unless `paused`.
+pub fn run(preset: Option<PathBuf>, paused: bool) -> Result<()> {
     let mut wb = Workbench::open_session()?;
     if let Some(p) = preset {
         wb.open_file(p.clone());
@@ -910,7 +1109,7 @@ pub fn run(preset: Option<PathBuf>, start: bool) -> Result<()> {
             anyhow::bail!("{}", wb.status);
         }
     }
-    wb.live.lock().running = start;
+    wb.live.lock().running = !paused;
     let mut viewport = egui::ViewportBuilder::default()
         .with_title("axisbench")
         .with_inner_size([1280.0, 800.0]);

@@ -1,5 +1,5 @@
-//! Plots: four linked time plots over a rolling window, the circle test, the sag profile and
-//! the A/B overlay. Live data is decimated to a min/max pair per pixel column before it
+//! Plots: the circle test, the sag profile and the A/B overlay, and the decimation the
+//! time plots (`scope.rs`) share. Live data is decimated to a min/max pair per pixel column before it
 //! reaches egui_plot, so a full 60 s window at 8 kHz costs the same as a short one.
 
 use eframe::egui;
@@ -8,11 +8,10 @@ use std::collections::VecDeque;
 use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
 
 use axisbench::Trace;
-use axisbench::trace::{AxisSignal, AxisSignal as S, display_unit_of};
-use axisbench::units::{m_per_s_to_mm_per_s, m_to_mm, m_to_um, mm_to_m, mm_to_um};
+use axisbench::trace::{AxisSignal, AxisSignal as S};
+use axisbench::units::{m_to_mm, m_to_um, mm_to_m, mm_to_um};
 
 use super::Workbench;
-use super::live::Ring;
 
 /// Min/max per column of `buckets` columns over [t0, t1] for the ring signal `col` (SI, as
 /// the trace holds it), shown through `show` (SI → the plotted unit, a named helper of
@@ -77,7 +76,7 @@ pub fn decimate(
     out
 }
 
-fn partition(t: &VecDeque<f64>, x: f64) -> usize {
+pub fn partition(t: &VecDeque<f64>, x: f64) -> usize {
     let (mut lo, mut hi) = (0, t.len());
     while lo < hi {
         let mid = (lo + hi) / 2;
@@ -92,124 +91,14 @@ fn partition(t: &VecDeque<f64>, x: f64) -> usize {
 
 /// SI value → the unit a plot shows it in.
 pub type Show = fn(f64) -> f64;
-/// One line of a plot: (legend label, trace signal, SI → the plotted unit).
-type LineDef = (String, String, Show);
 
-/// Shows a value as it is (the plotted unit is SI).
 fn si(v: f64) -> f64 {
     v
 }
 
-/// N → kN, for friction forces beside torques of a few N·m.
-fn n_to_kn(f: f64) -> f64 {
-    f / N_PER_KN
-}
-
-/// Newtons per kilonewton.
-const N_PER_KN: f64 = 1000.0;
-/// A plot's decimated lines: (legend label, points).
-type PlotLines = Vec<(String, Vec<[f64; 2]>)>;
-
-/// What each time plot shows for axis `a`.
-fn plot_defs(a: &str, ring: &Ring) -> Vec<(&'static str, Vec<LineDef>)> {
-    let has = |s: &str| ring.col(s).is_some();
-    let mut comps = vec![];
-    for (sig, label) in [
-        (S::BacklashComp.name(), "backlash [µm]"),
-        (S::ThermalComp.name(), "thermal F' at x [µm]"),
-        ("thermal_f", "thermal F [µm]"),
-        (S::CrossComp.name(), "cross ΔZ [µm]"),
-    ] {
-        let name = format!("{a}.{sig}");
-        if has(&name) {
-            comps.push((label.to_owned(), name, m_to_um as Show));
-        }
-    }
-    let q = AxisSignal::QuadrantComp.column(a);
-    if has(&q) {
-        // A torque, a velocity or a position by where it is injected: shown in the display
-        // unit of what the trace holds (N*m, mm/s, mm).
-        let (unit, show) =
-            display_unit_of(ring.unit(&q)).map_or(("", si as Show), |u| (u.name, u.from_si));
-        comps.push((format!("TFF [{unit}]"), q, show));
-    }
-    let e = format!("{a}.thermal_e");
-    if has(&e) {
-        comps.push(("E [-]".to_owned(), e, si));
-    }
-    for (sig, label) in [
-        ("thermal_e_ref", "E_ref [-]"),
-        ("thermal_band_hi", "E_ref + Em"),
-        ("thermal_band_lo", "E_ref - Em"),
-    ] {
-        let name = format!("{a}.{sig}");
-        if has(&name) {
-            comps.push((label.to_owned(), name, si));
-        }
-    }
-    vec![
-        (
-            "position error",
-            vec![
-                ("error cmd - pos [µm]".into(), S::Err.column(a), m_to_um),
-                ("following error [µm]".into(), S::Ferr.column(a), m_to_um),
-            ],
-        ),
-        (
-            "torque",
-            vec![
-                ("torque command [N·m]".into(), S::TorqueCmd.column(a), si),
-                ("torque [N·m]".into(), S::Torque.column(a), si),
-                ("friction force [kN]".into(), S::Friction.column(a), n_to_kn),
-            ],
-        ),
-        ("compensation outputs", comps),
-        (
-            "position and velocity",
-            vec![
-                ("position [mm]".into(), S::Pos.column(a), m_to_mm),
-                (
-                    "velocity [mm/s]".into(),
-                    S::Vel.column(a),
-                    m_per_s_to_mm_per_s,
-                ),
-            ],
-        ),
-    ]
-}
-
-/// The live series of every time plot of `axis`, decimated to `width_px` columns over the
-/// rolling window, and whether the model is running.
-fn live_series(
-    wb: &Workbench,
-    axis: &str,
-    width_px: usize,
-) -> (bool, Vec<(&'static str, PlotLines)>) {
-    let s = wb.live.lock();
-    let ring = &s.ring;
-    let t1 = ring.t_last();
-    let t0 = t1 - wb.window_s;
-    let empty = VecDeque::new();
-    let t = ring.cols.first().unwrap_or(&empty);
-    let series = plot_defs(axis, ring)
-        .into_iter()
-        .map(|(title, sigs)| {
-            let lines = sigs
-                .into_iter()
-                .filter_map(|(label, name, show)| {
-                    ring.col(&name)
-                        .map(|c| (label, decimate(t, c, t0, t1, width_px, show)))
-                })
-                .collect();
-            (title, lines)
-        })
-        .collect();
-    (s.running, series)
-}
-
 /// The line a loaded trace adds to the time plot `title`: its error (derived from cmd and
 /// pos when the file has no `err`), position or torque, decimated over its whole length.
-fn overlay_line(tr: &Trace, axis: &str, title: &str) -> Option<(String, Vec<[f64; 2]>)> {
+pub fn overlay_line(tr: &Trace, axis: &str, title: &str) -> Option<(String, Vec<[f64; 2]>)> {
     let (sig, show): (AxisSignal, Show) = match title {
         "position error" => (S::Err, m_to_um),
         "position and velocity" => (S::Pos, m_to_mm),
@@ -234,95 +123,8 @@ fn overlay_line(tr: &Trace, axis: &str, title: &str) -> Option<(String, Vec<[f64
     ))
 }
 
-/// The title row of a time plot, with its PNG export button.
-fn plot_title_ui(wb: &mut Workbench, ui: &mut egui::Ui, title: &str) {
-    ui.horizontal(|ui| {
-        ui.label(egui::RichText::new(title).strong());
-        if ui
-            .small_button("PNG")
-            .on_hover_text("export this plot to PNG")
-            .clicked()
-        {
-            let path =
-                std::path::PathBuf::from(format!("axisbench-{}.png", title.replace(' ', "-")));
-            wb.export_plot(ui.ctx(), title, path);
-        }
-    });
-}
-
-/// A time plot linked with the others on time and cursor, `h` points high.
-fn time_plot(title: &str, h: f32, group: egui::Id, running: bool) -> Plot<'_> {
-    let plot = Plot::new(title)
-        .height(h)
-        .legend(Legend::default())
-        .link_axis(group, [true, false])
-        .link_cursor(group, [true, false])
-        .x_axis_label("t [s]")
-        .label_formatter(|hp| {
-            Some(match hp {
-                egui_plot::HoverPosition::NearDataPoint {
-                    plot_name,
-                    position,
-                    ..
-                } => {
-                    format!("{plot_name}\nt = {:.4} s\n{:.4}", position.x, position.y)
-                }
-                egui_plot::HoverPosition::Elsewhere { position } => {
-                    format!("t = {:.4} s\n{:.4}", position.x, position.y)
-                }
-            })
-        });
-    if running {
-        plot.auto_bounds([true, true])
-    } else {
-        plot
-    }
-}
-
-/// The four linked time plots of the selected axis, with a loaded trace overlaid.
-pub fn time_plots_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
-    let axis = wb.axis_name();
-    let group = egui::Id::unique("time-plots");
-    let width_px = ui.available_width().max(100.0) as usize;
-    // Four plots, each with a title row above it.
-    let h = ((ui.available_height() - 30.0) / 4.0 - 26.0).max(80.0);
-    let (running, series) = live_series(wb, &axis, width_px);
-    let file = wb
-        .loaded_trace
-        .as_ref()
-        .map(|(n, t)| (n.clone(), t.clone()));
-    ui.horizontal(|ui| {
-        if let Some((n, _)) = &file {
-            ui.label(format!("overlay: {n}"));
-            if ui.button("Close trace").clicked() {
-                wb.loaded_trace = None;
-            }
-        }
-        ui.label(if running {
-            "following the live model"
-        } else {
-            "paused: drag to pan, scroll to zoom, hover for values"
-        });
-    });
-    for (title, lines) in series {
-        plot_title_ui(wb, ui, title);
-        let overlay = file
-            .as_ref()
-            .and_then(|(_, tr)| overlay_line(tr, &axis, title));
-        let resp = time_plot(title, h, group, running).show(ui, |pu| {
-            for (label, pts) in lines {
-                pu.line(Line::new(label, PlotPoints::from(pts)));
-            }
-            if let Some((label, pts)) = overlay {
-                pu.line(Line::new(label, PlotPoints::from(pts)));
-            }
-        });
-        wb.plot_rects_insert(title, resp.response.rect);
-    }
-}
-
 impl Workbench {
-    fn plot_rects_insert(&mut self, name: &str, rect: egui::Rect) {
+    pub(super) fn plot_rects_insert(&mut self, name: &str, rect: egui::Rect) {
         self.plot_rects.insert(name.to_owned(), rect);
     }
 }

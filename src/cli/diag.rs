@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use axisbench::diagnose::{self, Effect, Options, Progress, Report, eval, replay::Record};
+use axisbench::units::fmt_qty;
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -235,27 +236,32 @@ fn print_which(r: &Report) {
     }
     say!("  (* found)");
     say!("\nVERDICT: {}", r.verdict);
-    if r.verdict == "none" {
-        say!("  no unmodelled effect found beyond the calibration");
-    } else {
-        say!("  selected: {}", r.selected.join(" + "));
-    }
+    say!("  {}", r.summary);
+    say!("  (shrink of {})", r.shrink_of);
 }
 
 fn print_how_far(r: &Report) {
-    say!("\nHOW FAR (held out, position residual, um; before = the nominal as given):");
     say!(
-        "  overall rms {:.3} -> {:.3} ({:+.1}%), peak {:.3} -> {:.3}",
-        r.overall.rms_before,
-        r.overall.rms_after,
-        -r.overall.shrink * 100.0,
-        r.overall.peak_before,
-        r.overall.peak_after
+        "\nHOW FAR (held out, position residual; nominal as given -> calibrated -> with the effects; the shrink is the verdict's):"
     );
-    if let (Some(b), Some(a)) = (r.force_rms_before, r.force_rms_after) {
+    say!(
+        "  overall RMS {} -> {} -> {}, peak {} -> {}",
+        fmt_qty(r.overall.rms_before, "um"),
+        fmt_qty(r.overall.rms_calibrated, "um"),
+        fmt_qty(r.overall.rms_after, "um"),
+        fmt_qty(r.overall.peak_before, "um"),
+        fmt_qty(r.overall.peak_after, "um")
+    );
+    if let (Some(b), Some(c), Some(a)) = (
+        r.force_rms_before,
+        r.force_rms_calibrated,
+        r.force_rms_after,
+    ) {
         say!(
-            "  force residual rms {b:.3} -> {a:.3} N ({:+.1}%)",
-            -(1.0 - a / b) * 100.0
+            "  force residual RMS {} -> {} -> {}",
+            fmt_qty(b, "N"),
+            fmt_qty(c, "N"),
+            fmt_qty(a, "N")
         );
     }
     for g in &r.per_regime {

@@ -128,18 +128,82 @@ fn read_record_with(
     map: Option<&str>,
     read: impl Fn(Option<&Mapping>) -> Result<Trace, crate::trace::TraceError>,
 ) -> Result<Trace, DiagnoseError> {
-    let text = map.or(preset.diagnose.mapping.as_deref());
-    let mapping = text.map(Mapping::parse).transpose()?;
-    // A preset's default mapping only applies to records in that foreign layout; a record
-    // already in TRACE_FORMAT is read as it is.
-    match read(mapping.as_ref()) {
+    // A mapping the user gave is their word: it is the only reading.
+    if let Some(text) = map {
+        let m = Mapping::parse(text)?;
+        return read(Some(&m)).map_err(|e| foreign_hint(e, None));
+    }
+    // A record in TRACE_FORMAT is read as it is under any preset, and its own errors (a bad
+    // row) are the ones reported; only a foreign header turns to the preset's mapping.
+    match read(None) {
         Ok(t) => Ok(t),
-        Err(e) if map.is_none() && mapping.is_some() => match read(None) {
-            Ok(t) => Ok(t),
-            Err(_) => Err(e.into()),
+        Err(TraceError::Foreign { file, columns }) => match preset.diagnose.mapping.as_deref() {
+            Some(text) => {
+                let m = Mapping::parse(text)?;
+                read(Some(&m)).map_err(|e| foreign_hint(e, Some((preset, &columns))))
+            }
+            None => Err(foreign_hint(
+                TraceError::Foreign {
+                    file,
+                    columns: columns.clone(),
+                },
+                Some((preset, &columns)),
+            )),
         },
         Err(e) => Err(e.into()),
     }
+}
+
+/// A foreign layout's error, with what would read it: the columns found, the ones the
+/// preset's mapping wants, and the shipped preset whose mapping reads them.
+fn foreign_hint(e: TraceError, found: Option<(&Preset, &[String])>) -> DiagnoseError {
+    let Some((preset, columns)) = found else {
+        return e.into();
+    };
+    let (file, mut reason) = match &e {
+        TraceError::Foreign { file, .. } => (
+            file.clone(),
+            format!(
+                "the columns {} are not a TRACE_FORMAT trace (it needs t[s] and axis.signal[unit] columns)",
+                crate::trace::quote(&columns.join(", "), 400)
+            ),
+        ),
+        TraceError::Layout { file, reason } => (
+            file.clone(),
+            format!(
+                "{reason}; the mapping of preset '{}' wants the columns {}",
+                preset.name,
+                preset
+                    .diagnose
+                    .mapping
+                    .as_deref()
+                    .and_then(|t| Mapping::parse(t).ok())
+                    .map(|m| m.entries.iter().map(|e| e.source.clone()).collect::<Vec<_>>().join(", "))
+                    .unwrap_or_default()
+            ),
+        ),
+        _ => return e.into(),
+    };
+    let readers: Vec<&str> = crate::preset::SHIPPED_PRESETS
+        .iter()
+        .copied()
+        .filter(|name| {
+            crate::preset::load_embedded(name)
+                .ok()
+                .and_then(|lp| lp.preset.diagnose.mapping)
+                .and_then(|t| Mapping::parse(&t).ok())
+                .is_some_and(|m| m.entries.iter().all(|e| columns.contains(&e.source)))
+        })
+        .collect();
+    reason += &match readers.as_slice() {
+        [] => ": give a column mapping with --map (target=source, e.g. t[s]=time_s)".to_owned(),
+        names => format!(
+            ": these are the columns {} maps: use {}, or --map",
+            names.join(", "),
+            names.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(" or ")
+        ),
+    };
+    DiagnoseError::Record { file, reason }
 }
 
 /// Picks the axis to diagnose and checks that the record's axes belong to the preset.
@@ -254,38 +318,39 @@ pub struct RankEntry {
     pub evidence_figures: BTreeMap<String, f64>,
 }
 
-/// Held-out position residual of the nominal model ("before") against the model with the
-/// selected effects ("after"), µm: the headline of how much the diagnosis explains.
+/// Held-out position residual of the nominal model, the calibrated one and the model with
+/// the named effects, µm. Levels only: the one shrink figure is [`Report::shrink`].
 #[derive(Debug, Clone, Serialize)]
 pub struct Figures {
-    /// RMS with the nominal model, µm.
+    /// RMS with the nominal model as given, µm.
     pub rms_before: f64,
-    /// RMS with the selected effects, µm.
+    /// RMS with the calibrated nominal (where [`Report::shrink`] starts), µm.
+    pub rms_calibrated: f64,
+    /// RMS with the named effects, µm.
     pub rms_after: f64,
     /// Largest |residual| with the nominal model, µm.
     pub peak_before: f64,
-    /// Largest |residual| with the selected effects, µm.
+    /// Largest |residual| with the named effects, µm.
     pub peak_after: f64,
-    /// 1 − rms_after/rms_before (position only, from the nominal, unlike [`Report::shrink`]).
-    pub shrink: f64,
 }
 
-/// [`Figures`] for the held-out samples of one regime: shows in which phase of motion the
-/// selected effects removed the misfit.
+/// Held-out position residual levels in one regime: shows in which phase of motion the
+/// named effects removed the misfit.
 #[derive(Debug, Clone, Serialize)]
 pub struct RegimeChange {
     /// The regime's [`Regime::name`].
     pub name: String,
     /// Position residual RMS in the regime with the nominal model, µm.
     pub rms_before: f64,
-    /// Position residual RMS in the regime with the selected effects, µm.
+    /// Position residual RMS in the regime with the named effects, µm.
     pub rms_after: f64,
     /// Largest |residual| in the regime with the nominal model, µm.
     pub peak_before: f64,
-    /// Largest |residual| in the regime with the selected effects, µm.
+    /// Largest |residual| in the regime with the named effects, µm.
     pub peak_after: f64,
-    /// 1 − rms_after/rms_before.
-    pub shrink: f64,
+    /// Fraction of the residual energy left after the named effects that lies in this
+    /// regime.
+    pub share_after: f64,
 }
 
 /// The outcome of one diagnosis, as the CLI prints it, the GUI shows it and JSON stores it.
@@ -337,6 +402,14 @@ pub struct Report {
     /// the named effects, 0..1: 1 − the ratio of their RMS levels, position and force each
     /// weighed by the calibrated model's fitting residual. The one shrink figure.
     pub shrink: f64,
+    /// What [`Report::shrink`] is a shrink of, in words.
+    pub shrink_of: String,
+    /// The regime holding most (over half) of the residual energy left after the named
+    /// effects, with its share; None when no regime holds most.
+    pub remaining_regime: Option<(String, f64)>,
+    /// The verdict line, built once ([`report::summary_line`]) for the CLI, the GUI and the
+    /// JSON.
+    pub summary: String,
     /// Every candidate: the named ones first, then by their first-round net gain.
     pub ranking: Vec<RankEntry>,
     /// Held-out position residual of the nominal model, per regime.
@@ -355,6 +428,8 @@ pub struct Report {
     pub force_rms_before: Option<f64>,
     /// Held-out force residual RMS with the selected effects, N.
     pub force_rms_after: Option<f64>,
+    /// Held-out force residual RMS with the calibrated nominal, N.
+    pub force_rms_calibrated: Option<f64>,
     /// Held-out position residual, nominal against the selected effects, over all samples.
     pub overall: Figures,
     /// The same per regime of the held-out command.

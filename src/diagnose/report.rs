@@ -192,17 +192,77 @@ fn per_regime(before: &[f64], after: &[f64], labels: &[regimes::Regime]) -> Vec<
         .iter()
         .map(|b| {
             let a = reg_a.iter().find(|a| a.name == b.name);
-            let (ra, pa) = a.map_or((0.0, 0.0), |a| (a.rms, a.peak));
+            let (ra, pa, sa) = a.map_or((0.0, 0.0, 0.0), |a| (a.rms, a.peak, a.share));
             RegimeChange {
                 name: b.name.clone(),
                 rms_before: b.rms,
                 rms_after: ra,
                 peak_before: b.peak,
                 peak_after: pa,
-                shrink: ratio_shrink(b.rms, ra),
+                share_after: sa,
             }
         })
         .collect()
+}
+
+/// A regime holds "most" of what is left when it has more than half of its energy.
+const MOST: f64 = 0.5;
+
+/// The regime holding most of the residual left after the named effects, if one does.
+fn remaining_regime(per: &[RegimeChange]) -> Option<(String, f64)> {
+    per.iter()
+        .filter(|r| r.share_after > MOST)
+        .max_by(|a, b| a.share_after.total_cmp(&b.share_after))
+        .map(|r| (r.name.clone(), r.share_after))
+}
+
+/// What the shrink is a shrink of, in words, by the channels the record scores.
+fn shrink_of(has_force: bool) -> String {
+    if has_force {
+        "the held-out position and force residuals together (each weighed by the calibrated model's fitting residual), calibrated model -> with the named effects".into()
+    } else {
+        "the held-out position residual RMS, calibrated model -> with the named effects".into()
+    }
+}
+
+/// The verdict line: the one sentence the CLI prints, the GUI shows and the JSON stores, so
+/// the three cannot disagree.
+pub fn summary_line(r: &Report) -> String {
+    let mut s = if r.selected.is_empty() {
+        "verdict: none (no unmodelled effect beyond the calibration)".to_owned()
+    } else {
+        let levels = match (r.force_rms_calibrated, r.force_rms_after) {
+            (Some(b), Some(a)) => format!(
+                "position RMS {} -> {}, force RMS {} -> {}",
+                fmt_um(r.overall.rms_calibrated),
+                fmt_um(r.overall.rms_after),
+                crate::units::fmt_qty(b, "N"),
+                crate::units::fmt_qty(a, "N")
+            ),
+            _ => format!(
+                "position RMS {} -> {}",
+                fmt_um(r.overall.rms_calibrated),
+                fmt_um(r.overall.rms_after)
+            ),
+        };
+        format!(
+            "verdict: {}; held-out shrink {:.1} % ({levels}, calibrated -> with the effects)",
+            r.selected.join(" + "),
+            r.shrink * 100.0
+        )
+    };
+    if let Some((name, share)) = &r.remaining_regime {
+        s += &format!(
+            "; most of what is left lies in {} ({:.0} % of its energy)",
+            name.replace('_', " "),
+            share * 100.0
+        );
+    }
+    s
+}
+
+fn fmt_um(v_um: f64) -> String {
+    crate::units::fmt_qty(v_um, "um")
 }
 
 /// Builds the report (and the fitted preset for "apply to model").
@@ -223,6 +283,9 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
         .collect();
     let verdict = selected.first().cloned().unwrap_or_else(|| "none".into());
     let (rb, ra) = (rms(&before), rms(&after));
+    let rc = m_to_um(rms(&p.cal_eval.hold_pos));
+    let per = per_regime(&before, &after, &labels);
+    let has_force = p.cal_eval.hold_force.is_some();
     let mut fitted = preset.clone();
     if let Some(a) = fitted.axes.iter_mut().find(|a| a.name == main.axis) {
         *a = out.final_cand.model.axis.clone();
@@ -234,7 +297,7 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
         .map(|(c, _)| *c)
         .zip(out.final_values.iter().copied())
         .collect();
-    Report {
+    let mut rep = Report {
         preset: preset.name.clone(),
         axis: main.axis.clone(),
         base_axis: p.base_axis.clone(),
@@ -278,14 +341,18 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
         windows_before: regimes::worst_windows(&before, hold_rec.t0_s, hold_rec.t3_s, win_len, 10),
         force_rms_before: p.nom_eval.hold_force.as_deref().map(rms),
         force_rms_after: out.final_eval.hold_force.as_deref().map(rms),
+        force_rms_calibrated: p.cal_eval.hold_force.as_deref().map(rms),
         overall: Figures {
             rms_before: rb,
+            rms_calibrated: rc,
             rms_after: ra,
             peak_before: peak(&before),
             peak_after: peak(&after),
-            shrink: ratio_shrink(rb, ra),
         },
-        per_regime: per_regime(&before, &after, &labels),
+        shrink_of: shrink_of(has_force),
+        remaining_regime: remaining_regime(&per),
+        summary: String::new(),
+        per_regime: per,
         fitted: Some(fitted),
         series: Some(Series {
             t_s: t,
@@ -294,5 +361,7 @@ pub fn build(preset: &Preset, eng: &Engine, p: Parts) -> Report {
             after_um: after,
             regimes: labels,
         }),
-    }
+    };
+    rep.summary = summary_line(&rep);
+    rep
 }

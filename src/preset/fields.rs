@@ -585,7 +585,110 @@ impl Visitor for Lister {
     }
 }
 
+/// Every field of a walk as (path, exact value, value as a user reads it): the exact text
+/// decides whether two fields differ, so a change below the shown precision still shows.
+struct Values {
+    out: Vec<(String, String, String)>,
+}
+
+impl Visitor for Values {
+    fn field(&mut self, path: &str, _label: &'static str, f: Field<'_>, _relevant: bool) {
+        use crate::units::{fmt_num, fmt_qty, symbol};
+        let (exact, shown) = match f {
+            Field::Num(x, r) => (format!("{x:?}"), fmt_qty(*x, r.unit)),
+            Field::OptNum(x, r) => (
+                format!("{x:?}"),
+                x.map_or_else(|| "none".to_owned(), |x| fmt_qty(x, r.unit)),
+            ),
+            Field::Count(n, _) => (n.to_string(), n.to_string()),
+            Field::Index(n, _) => (n.to_string(), n.to_string()),
+            Field::Flag(b) => (b.to_string(), if *b { "on" } else { "off" }.to_owned()),
+            Field::Choice(c) => (c.current().to_owned(), c.current().to_owned()),
+            Field::Table(t, spec) => (
+                format!("{t:?}"),
+                format!(
+                    "{} points ({}, {}): {}",
+                    t.len(),
+                    symbol(spec.x.unit),
+                    symbol(spec.y.unit),
+                    t.iter()
+                        .map(|(x, y)| format!("({}, {})", fmt_num(*x), fmt_num(*y)))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                ),
+            ),
+            Field::Times(t, r, _) => (
+                format!("{t:?}"),
+                t.iter()
+                    .map(|x| fmt_qty(*x, r.unit))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            ),
+            Field::Text(s) => (s.clone(), s.clone()),
+            Field::OptText(s) => (
+                format!("{s:?}"),
+                s.clone().unwrap_or_else(|| "none".to_owned()),
+            ),
+            Field::Letter(c) => (c.to_string(), c.to_string()),
+            Field::Ron(v) => (v.to_ron_text(), v.to_ron_text()),
+        };
+        self.out.push((path.to_owned(), exact, shown));
+    }
+}
+
+/// One field that differs between two presets: its path and both values as shown.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldChange {
+    /// The field's path (`axes.x.servo.kp_per_s`).
+    pub path: String,
+    /// Its value before ("—" when the field does not exist there).
+    pub before: String,
+    /// Its value after ("—" when the field does not exist there).
+    pub after: String,
+}
+
 impl Preset {
+    /// Every field as (path, exact value, value as a user reads it), in walk order.
+    fn field_values(&self) -> Vec<(String, String, String)> {
+        let mut v = Values { out: vec![] };
+        self.clone().fields(&mut Walker::new("", &mut v));
+        v.out
+    }
+
+    /// The fields that differ from `self` to `other`, field by field (what an Apply will
+    /// change), in walk order, each with both values as a user reads them.
+    pub fn diff(&self, other: &Preset) -> Vec<FieldChange> {
+        let a = self.field_values();
+        let b = other.field_values();
+        let find = |list: &[(String, String, String)], p: &str| {
+            list.iter()
+                .find(|(q, _, _)| q == p)
+                .map(|(_, e, s)| (e.clone(), s.clone()))
+        };
+        let mut out: Vec<FieldChange> = a
+            .iter()
+            .filter_map(|(p, ea, sa)| {
+                let other = find(&b, p);
+                let same = other.as_ref().is_some_and(|(eb, _)| eb == ea);
+                (!same).then(|| FieldChange {
+                    path: p.clone(),
+                    before: sa.clone(),
+                    after: other.map_or_else(|| "—".to_owned(), |(_, sb)| sb),
+                })
+            })
+            .collect();
+        out.extend(
+            b.iter()
+                .filter(|(p, _, _)| !a.iter().any(|(q, _, _)| q == p))
+                .map(|(p, _, sb)| FieldChange {
+                    path: p.clone(),
+                    before: "—".to_owned(),
+                    after: sb.clone(),
+                }),
+        );
+        out
+    }
+
     /// Sets the field at `path` (`axes.x.servo.kp_per_s`) from `value`, then checks the
     /// whole preset's data. Numbers are plain decimals; enums take their preset names
     /// (`lump`); lists and tables are RON (`[(0.0, 0.0), (100.0, 2.5)]`, `["a.ngc"]`).

@@ -342,6 +342,17 @@ fn columns(
             }
         }
         None => {
+            // A header without t[s], or with a column that is not signal[unit], is another
+            // layout, not a broken trace: say so with its columns, so a caller can name the
+            // mapping that reads it.
+            let native = headers.iter().any(|h| split_header(h).is_some_and(|(n, _)| n == "t"))
+                && headers.iter().all(|h| split_header(h).is_some());
+            if !native {
+                return Err(TraceError::Foreign {
+                    file: file.to_owned(),
+                    columns: headers.iter().map(str::to_owned).collect(),
+                });
+            }
             for (idx, h) in headers.iter().enumerate() {
                 let (name, unit) = split_header(h)
                     .ok_or_else(|| layout(format!("{} is not signal[unit]", label(idx, h))))?;
