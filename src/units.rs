@@ -199,18 +199,28 @@ const SIG_DIGITS: i32 = 4;
 /// notation from 1e-4 to 1e7, no trailing zeros after the point (160.6, 0.6021, 20.07),
 /// an exponent outside; "—" for a value that is not finite.
 pub fn fmt_num(v: f64) -> String {
+    fmt_sig(v, SIG_DIGITS)
+}
+
+/// [`fmt_num`] with `digits` significant digits (an editable field shows more).
+pub fn fmt_sig(v: f64, digits: i32) -> String {
     if !v.is_finite() {
         return "—".to_owned();
     }
     if v == 0.0 {
         return "0".to_owned();
     }
-    let mag = v.abs().log10().floor() as i32;
+    let digits = digits.clamp(1, 17);
+    // Round first, so 9.9996 at four digits becomes 10 and is placed as 10.
+    let rounded: f64 = format!("{v:.*e}", (digits - 1) as usize)
+        .parse()
+        .unwrap_or(v);
+    let mag = rounded.abs().log10().floor() as i32;
     if !(-4..7).contains(&mag) {
-        return format!("{v:.*e}", (SIG_DIGITS - 1) as usize);
+        return format!("{rounded:.*e}", (digits - 1) as usize);
     }
-    let decimals = (SIG_DIGITS - 1 - mag).max(0) as usize;
-    let s = format!("{v:.decimals$}");
+    let decimals = (digits - 1 - mag).max(0) as usize;
+    let s = format!("{rounded:.decimals$}");
     if s.contains('.') {
         s.trim_end_matches('0').trim_end_matches('.').to_owned()
     } else {
@@ -244,5 +254,7 @@ mod fmt_tests {
         assert_eq!(fmt_qty(0.14, "N*m"), "0.14 N·m");
         assert_eq!(fmt_qty(300.0, "N*s/m"), "300 N·s/m");
         assert_eq!(fmt_qty(3.0, ""), "3");
+        assert_eq!(fmt_num(9.99996), "10");
+        assert_eq!(fmt_sig(160.6170160, 6), "160.617");
     }
 }

@@ -69,7 +69,10 @@ mod tests {
         for name in axisbench::preset::SHIPPED_PRESETS {
             let v = parsed.get(*name).expect("every shipped preset has a view");
             assert!(v.note.len() > 40, "no trainer note for {name}");
-            assert!((0.1..=1000.0).contains(&v.speed), "{name}: speed off the slider");
+            assert!(
+                (0.1..=1000.0).contains(&v.speed),
+                "{name}: speed off the slider"
+            );
             assert!(
                 (1.0..=super::super::live::MAX_WINDOW_S).contains(&v.window_s),
                 "{name}: window off the slider"

@@ -3,8 +3,8 @@
 //! residual lies, which effect explains it, and apply the fitted effect to the preset.
 
 use super::Workbench;
-use axisbench::units::{fmt_num, fmt_qty};
 use axisbench::diagnose::{self, Options, Progress, Report, regimes::Regime, replay::Record};
+use axisbench::units::{fmt_num, fmt_qty};
 use eframe::egui;
 use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points, Polygon};
 use std::path::PathBuf;
@@ -31,7 +31,10 @@ pub struct Basis {
 impl Basis {
     pub fn of(wb: &Workbench) -> Basis {
         Basis {
-            origin: wb.path.as_ref().map_or(wb.origin.clone(), |p| p.display().to_string()),
+            origin: wb
+                .path
+                .as_ref()
+                .map_or(wb.origin.clone(), |p| p.display().to_string()),
             preset_ron: wb.preset.to_ron().unwrap_or_default(),
         }
     }
@@ -259,7 +262,10 @@ fn records_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         ui.add(egui::TextEdit::singleline(&mut wb.diag.trace_path).desired_width(320.0))
             .labelled_by(l.id);
         if ui.button("Browse record…").clicked() {
-            match rfd::FileDialog::new().add_filter("CSV", &["csv"]).pick_file() {
+            match rfd::FileDialog::new()
+                .add_filter("CSV", &["csv"])
+                .pick_file()
+            {
                 Some(p) => wb.diag.trace_path = p.display().to_string(),
                 None => wb.status = super::no_dialog("Measured record"),
             }
@@ -270,7 +276,10 @@ fn records_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         ui.add(egui::TextEdit::singleline(&mut wb.diag.validate_path).desired_width(320.0))
             .labelled_by(l.id);
         if ui.button("Browse validation…").clicked() {
-            match rfd::FileDialog::new().add_filter("CSV", &["csv"]).pick_file() {
+            match rfd::FileDialog::new()
+                .add_filter("CSV", &["csv"])
+                .pick_file()
+            {
                 Some(p) => wb.diag.validate_path = p.display().to_string(),
                 None => wb.status = super::no_dialog("Validation record"),
             }
@@ -349,18 +358,20 @@ fn apply_diff_ui(wb: &Workbench, ui: &mut egui::Ui) {
     egui::CollapsingHeader::new(format!("Apply will change {} fields", diff.len()))
         .id_salt("apply-diff")
         .show(ui, |ui| {
-            egui::Grid::new("apply-diff-grid").striped(true).show(ui, |ui| {
-                ui.strong("field");
-                ui.strong("now");
-                ui.strong("after Apply");
-                ui.end_row();
-                for c in &diff {
-                    ui.label(&c.path);
-                    ui.label(&c.before);
-                    ui.label(&c.after);
+            egui::Grid::new("apply-diff-grid")
+                .striped(true)
+                .show(ui, |ui| {
+                    ui.strong("field");
+                    ui.strong("now");
+                    ui.strong("after Apply");
                     ui.end_row();
-                }
-            });
+                    for c in &diff {
+                        ui.label(&c.path);
+                        ui.label(&c.before);
+                        ui.label(&c.after);
+                        ui.end_row();
+                    }
+                });
         });
 }
 

@@ -16,7 +16,10 @@ use axisbench::measure;
 use axisbench::preset::comp::Reversal;
 use axisbench::preset::fields::{Field, FieldsDyn, Num, TableSpec, Visitor, Walker, short};
 use axisbench::preset::{AxisParams, Preset};
-use axisbench::units::{m_to_mm, m_to_um, s_to_ms, symbol};
+use axisbench::units::{fmt_num, fmt_qty, fmt_sig, m_to_mm, m_to_um, s_to_ms, symbol};
+
+/// Significant digits an editable number shows (more than a read-out: it is typed over).
+const FIELD_DIGITS: i32 = 6;
 use eframe::egui;
 
 use super::Workbench;
@@ -86,15 +89,27 @@ impl Form<'_> {
             // The field shows the value in force whenever the user is not typing in it: a
             // refused value leaves with its error message, which names it, and a load, a
             // wizard or an edit elsewhere shows at once.
+            // Whether the user typed here since the field took focus (egui's memory, by
+            // the field's id), so a focus change alone never counts as typing.
+            let typed_id = r.id.with("typed");
+            if r.changed() {
+                ui.data_mut(|d| d.insert_temp(typed_id, true));
+            }
             if commit && buf.trim() != shown {
                 out = Some(buf.trim().to_owned());
             } else if commit {
                 // The value in force typed again: nothing is refused any more.
-                if errors.contains_key(path) {
+                let typed = ui
+                    .data_mut(|d| d.remove_temp::<bool>(typed_id))
+                    .unwrap_or(false);
+                if typed && errors.contains_key(path) {
                     cleared = true;
                 }
             } else if !r.has_focus() && *buf != shown {
                 *buf = shown;
+            }
+            if commit {
+                ui.data_mut(|d| d.remove::<bool>(typed_id));
             }
         });
         if cleared {
@@ -104,7 +119,7 @@ impl Form<'_> {
     }
 
     fn num_ui(&mut self, path: &str, label: &str, x: &mut f64, r: Num) {
-        if let Some(text) = self.text_ui(path, label, r.unit, short(*x)) {
+        if let Some(text) = self.text_ui(path, label, r.unit, fmt_sig(*x, FIELD_DIGITS)) {
             match text.parse::<f64>() {
                 Ok(v) => {
                     *x = v;
@@ -250,8 +265,10 @@ impl Workbench {
             } else {
                 mine.join("; ")
             };
-            self.field_errors
-                .insert(path.to_owned(), format!("refused: {msg} (the value shown stays in force)"));
+            self.field_errors.insert(
+                path.to_owned(),
+                format!("refused: {msg} (the value shown stays in force)"),
+            );
             self.fields.remove(path);
             return false;
         }
@@ -298,8 +315,10 @@ impl Workbench {
         }
         if let Some((path, msg)) = parse_error {
             self.fields.remove(&path);
-            self.field_errors
-                .insert(path, format!("refused: {msg} (the value shown stays in force)"));
+            self.field_errors.insert(
+                path,
+                format!("refused: {msg} (the value shown stays in force)"),
+            );
         }
         if let Some(path) = changed {
             self.commit(cand, &path);
@@ -394,13 +413,10 @@ fn quadrant_live_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     };
     if let Some((pa, n, m, t)) = readout {
         ui.label(format!(
-            "live: PA = {} mm, N = {n}, M = {m:.4}, T = {:.2} ms",
-            if pa.is_finite() {
-                format!("{:.3}", m_to_mm(pa))
-            } else {
-                "—".into()
-            },
-            s_to_ms(t)
+            "live: PA = {}, N = {n}, M = {}, T = {}",
+            fmt_qty(m_to_mm(pa), "mm"),
+            fmt_num(m),
+            fmt_qty(s_to_ms(t), "ms")
         ));
     }
 }
@@ -416,9 +432,10 @@ fn thermal_live_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     };
     if let Some((f, fa, e, n)) = readout {
         ui.label(format!(
-            "live: F = {:.3} µm, F' = {:.3} µm, E = {e:.4}, measurements {n}",
-            m_to_um(f),
-            m_to_um(fa)
+            "live: F = {}, F' = {}, E = {}, measurements {n}",
+            fmt_qty(m_to_um(f), "um"),
+            fmt_qty(m_to_um(fa), "um"),
+            fmt_num(e)
         ));
     }
     if ui.button("Measure now").clicked() {
@@ -460,7 +477,7 @@ fn calibration_ui(wb: &mut Workbench, ui: &mut egui::Ui, name: &str) {
                             a.thermal.k_per_um = k;
                         }
                     });
-                    format!("Step 1: k = {k:.6} per µm (applied)")
+                    format!("Step 1: k = {} per µm (applied)", fmt_num(k))
                 }
                 Err(e) => format!("Step 1 failed: {e}"),
             });
@@ -483,7 +500,7 @@ fn calibration_ui(wb: &mut Workbench, ui: &mut egui::Ui, name: &str) {
                             a.thermal.a = av;
                         }
                     });
-                    format!("Step 2: a = {av:.4} (applied)")
+                    format!("Step 2: a = {} (applied)", fmt_num(av))
                 }
                 Err(e) => format!("Step 2 failed: {e}"),
             });

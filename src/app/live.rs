@@ -65,7 +65,10 @@ impl History {
     /// Merges neighbouring buckets: half as many, twice as wide.
     fn merge(&mut self) {
         for (lo, hi) in self.lo.iter_mut().zip(self.hi.iter_mut()) {
-            *lo = lo.chunks(2).map(|c| c.iter().copied().fold(f64::INFINITY, f64::min)).collect();
+            *lo = lo
+                .chunks(2)
+                .map(|c| c.iter().copied().fold(f64::INFINITY, f64::min))
+                .collect();
             *hi = hi
                 .chunks(2)
                 .map(|c| c.iter().copied().fold(f64::NEG_INFINITY, f64::max))

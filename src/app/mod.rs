@@ -129,7 +129,8 @@ pub struct Workbench {
     pub pending: Option<Pending>,
     /// The user agreed to close the window; the next frame closes it.
     pub close_now: bool,
-    quit_allowed: bool,
+    /// The user agreed to quit (the close request is no longer refused).
+    pub quit_allowed: bool,
 }
 
 /// Applies kept for Undo.

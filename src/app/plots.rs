@@ -9,7 +9,7 @@ use egui_plot::{Legend, Line, Plot, PlotPoints, Points};
 
 use axisbench::Trace;
 use axisbench::trace::{AxisSignal, AxisSignal as S};
-use axisbench::units::{m_to_mm, m_to_um, mm_to_m, mm_to_um};
+use axisbench::units::{fmt_qty, m_to_mm, m_to_um, mm_to_m, mm_to_um};
 
 use super::Workbench;
 
@@ -202,8 +202,9 @@ pub fn circle_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         .map(|&(x, y)| ((x - cx).hypot(y - cy) - r0).abs())
         .fold(0.0, f64::max);
     ui.label(format!(
-        "R = {r0:.4} mm, radial deviation max {:.3} µm (plot magnified {k:.0}×)",
-        mm_to_um(max_err)
+        "R = {}, radial deviation max {} (plot magnified {k:.0}×)",
+        fmt_qty(r0, "mm"),
+        fmt_qty(mm_to_um(max_err), "um")
     ));
     Plot::new("circle")
         .data_aspect(1.0)
@@ -378,20 +379,19 @@ pub fn compare_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         .show(ui, |ui| {
             for h in [
                 "run",
-                "peak |error| µm",
-                "RMS error µm",
-                "worst +->- reversal µm",
-                "worst -->+ reversal µm",
+                "peak |error|",
+                "RMS error",
+                "worst +->- reversal",
+                "worst -->+ reversal",
             ] {
                 ui.label(egui::RichText::new(h).strong());
             }
             ui.end_row();
             for (label, peak, rms, dn, up) in &c.table {
                 ui.label(label);
-                ui.label(format!("{peak:.3}"));
-                ui.label(format!("{rms:.3}"));
-                ui.label(format!("{dn:.3}"));
-                ui.label(format!("{up:.3}"));
+                for v in [peak, rms, dn, up] {
+                    ui.label(fmt_qty(*v, "um"));
+                }
                 ui.end_row();
             }
         });

@@ -86,7 +86,7 @@ pub const SIGNALS: &[SigDef] = &[
     },
     SigDef {
         key: "thermal_comp",
-        label: "thermal F′ at x",
+        label: "thermal F' at x",
         plot: "compensation outputs",
         unit: "um",
         show: m_to_um,
@@ -212,15 +212,16 @@ fn color((r, g, b): (u8, u8, u8)) -> egui::Color32 {
 /// the quadrant feed-forward in the plot of its unit (a torque with the torques).
 pub fn plot_defs(a: &str, ring: &Ring) -> Vec<PlotDef> {
     let mut plots: Vec<PlotDef> = vec![];
-    let mut push = |title: &str, unit: &str, line: LineDef| {
-        match plots.iter_mut().find(|p| p.title == title) {
-            Some(p) => p.lines.push(line),
-            None => plots.push(PlotDef {
-                title: title.to_owned(),
-                unit: unit.to_owned(),
-                lines: vec![line],
-            }),
-        }
+    let mut push = |title: &str, unit: &str, line: LineDef| match plots
+        .iter_mut()
+        .find(|p| p.title == title)
+    {
+        Some(p) => p.lines.push(line),
+        None => plots.push(PlotDef {
+            title: title.to_owned(),
+            unit: unit.to_owned(),
+            lines: vec![line],
+        }),
     };
     for d in SIGNALS {
         let col = format!("{a}.{}", d.key);
@@ -479,8 +480,8 @@ fn plot_header_ui(
                 .and_then(|k| lines.iter().find(|(l, _)| l.key == *k))
                 .map_or("all signals".to_owned(), |(l, _)| l.label.clone());
             let mut pick: Option<Option<String>> = None;
-            egui::ComboBox::from_id_salt(format!("scale-{title}"))
-                .selected_text(format!("y scale: {label}"))
+            egui::ComboBox::new(format!("scale-{title}"), "y scale")
+                .selected_text(label)
                 .show_ui(ui, |ui| {
                     if ui.selectable_label(cur.is_none(), "all signals").clicked() {
                         pick = Some(None);
@@ -528,7 +529,9 @@ fn y_range(pts: &[[f64; 2]]) -> Option<(f64, f64)> {
     if !lo.is_finite() {
         return None;
     }
-    let pad = ((hi - lo) * 0.05).max(hi.abs().max(lo.abs()) * 1e-6).max(1e-12);
+    let pad = ((hi - lo) * 0.05)
+        .max(hi.abs().max(lo.abs()) * 1e-6)
+        .max(1e-12);
     Some((lo - pad, hi + pad))
 }
 
@@ -596,9 +599,7 @@ fn plot_ui(
             pu.line(Line::new(l.label, PlotPoints::from(pts)).color(l.color));
         }
         if let Some((label, pts)) = overlay {
-            pu.line(
-                Line::new(label, PlotPoints::from(pts)).color(egui::Color32::from_gray(200)),
-            );
+            pu.line(Line::new(label, PlotPoints::from(pts)).color(egui::Color32::from_gray(200)));
         }
         for (i, c) in cursors.iter().enumerate() {
             if let Some(t) = c {

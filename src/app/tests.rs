@@ -147,7 +147,7 @@ fn a_bad_value_shows_an_error_and_keeps_the_previous_value() {
     assert!(
         wb.field_errors
             .get("axes.x.backlash.q_um")
-            .is_some_and(|e| e.contains("-5 is outside the allowed range 0 … 100000 um")),
+            .is_some_and(|e| e.contains("-5 is outside the allowed range 0 … 100000 µm")),
         "{:?}",
         wb.field_errors
     );
@@ -176,7 +176,7 @@ fn ab_compare_produces_its_table() {
         "both reversal directions are reported: {a:?}"
     );
     assert!(
-        h.query_by_label("RMS error µm").is_some(),
+        h.query_by_label("RMS error").is_some(),
         "table header shown"
     );
 }
@@ -306,17 +306,97 @@ fn diagnose_view_runs_and_applies_the_fitted_effect() {
         assert_eq!(rep.verdict, "coulomb_friction");
         assert_eq!(wb.preset.axes[0].friction.coulomb_n, 0.0, "not applied yet");
     }
+    // What Apply will change is listed field by field before it is clicked.
+    assert!(
+        h.query_by_label_contains("Apply will change").is_some(),
+        "the diff is offered"
+    );
+    let diff = {
+        let wb = h.state();
+        let fitted = wb.diag.report.as_ref().and_then(|r| r.fitted.clone());
+        wb.preset.diff(&fitted.expect("a fitted preset"))
+    };
+    assert!(
+        diff.iter().any(|c| c.path == "axes.x.friction.coulomb_n"),
+        "{diff:?}"
+    );
+
+    // The problem this guards against: diagnose on emps.ron, switch to default.ron, and
+    // Apply must not put the EMPS machine in its place.
+    h.get_by_label("Scenario").click();
+    h.run();
+    h.get_by_label("default.ron").click();
+    h.run();
+    assert_eq!(h.state().preset.name, "default");
+    let default_ron = h.state().preset.to_ron().expect("ron");
+    assert!(
+        h.query_by_label_contains("Apply is off: computed on emps.ron")
+            .is_some(),
+        "the reason is shown"
+    );
     h.get_by_label("Apply to model").click();
     h.run();
+    assert_eq!(
+        h.state().preset.to_ron().expect("ron"),
+        default_ron,
+        "a disabled Apply changes nothing"
+    );
+    h.state_mut().apply_diagnosis();
+    assert_eq!(
+        h.state().preset.to_ron().expect("ron"),
+        default_ron,
+        "nor does calling it directly"
+    );
+
+    // Back on the machine it was computed on, an edit also makes it stale…
+    h.get_by_label("Scenario").click();
+    h.run();
+    h.get_by_label("emps.ron").click();
+    h.run();
+    assert!(h.state().diagnosis_not_applicable().is_none());
+    assert!(
+        h.state_mut()
+            .edit("axes.x.servo.kp_per_s", |p| p.axes[0].servo.kp_per_s *= 1.1)
+    );
+    h.run();
+    assert!(
+        h.state()
+            .diagnosis_not_applicable()
+            .is_some_and(|w| w.contains("edited since")),
+        "{:?}",
+        h.state().diagnosis_not_applicable()
+    );
+    // … and the scenario as it was makes it current again.
+    h.state_mut().load_scenario("emps.ron");
+    h.run();
+    assert!(h.state().diagnosis_not_applicable().is_none());
+    let before = h.state().preset.clone();
+    h.get_by_label("Apply to model").click();
+    h.run();
+    {
+        let wb = h.state();
+        let fc = wb.preset.axes[0].friction.coulomb_n;
+        assert!((fc - 20.39).abs() < 3.0, "applied Coulomb force {fc} N");
+        assert_eq!(
+            wb.live.lock().machine.preset.axes[0].friction.coulomb_n,
+            fc,
+            "the running machine took it"
+        );
+        assert!(wb.dirty(), "the fitted preset is an unsaved edit");
+        assert!(
+            wb.diagnosis_not_applicable().is_some(),
+            "applied once: not again"
+        );
+    }
+    h.get_by_label("Undo apply").click();
+    h.run();
     let wb = h.state();
-    let fc = wb.preset.axes[0].friction.coulomb_n;
-    assert!((fc - 20.39).abs() < 3.0, "applied Coulomb force {fc} N");
+    assert_eq!(wb.preset, before, "Undo restores every field");
     assert_eq!(
         wb.live.lock().machine.preset.axes[0].friction.coulomb_n,
-        fc,
-        "the running machine took it"
+        0.0,
+        "and the running machine has it back"
     );
-    assert!(wb.dirty(), "the fitted preset is an unsaved edit");
 }
 
 #[test]
@@ -382,10 +462,21 @@ fn switch_everything_on(h: &mut Harness<'static, Workbench>) -> usize {
         .filter_map(|n| n.accesskit_node().label())
         .collect();
     for label in boxes {
-        if let Some(n) = h.query_by_label(&label)
-            && n.accesskit_node().toggled() == Some(egui::accesskit::Toggled::False)
-        {
-            n.click();
+        let clicked = {
+            let n = h
+                .query_all_by_label(&label)
+                .find(|n| n.accesskit_node().role() == egui::accesskit::Role::CheckBox);
+            match n {
+                Some(n)
+                    if n.accesskit_node().toggled() == Some(egui::accesskit::Toggled::False) =>
+                {
+                    n.click();
+                    true
+                }
+                _ => false,
+            }
+        };
+        if clicked {
             h.run();
             switched += 1;
         }
@@ -574,4 +665,238 @@ fn a_payload_coupling_is_chosen_and_edited_in_the_plant_panel() {
     let s = wb.live.lock();
     assert!(s.fault.is_none(), "{:?}", s.fault);
     assert!(s.machine.axes[0].pos_m.is_finite());
+}
+
+#[test]
+fn a_refused_value_leaves_the_field_showing_the_value_in_force() {
+    let mut h = harness(default_wb());
+    h.run();
+    let before = h.state().preset.axes[0].backlash.q_um;
+    let shown = axisbench::units::fmt_sig(before, 6);
+    let huge: f64 = format!("{shown}e300").parse().expect("a number");
+    let refused = format!(
+        "refused: {} is outside the allowed range",
+        axisbench::preset::fields::short(huge)
+    );
+    let text_input = egui::accesskit::Role::TextInput;
+    h.get_by_role_and_label(text_input, "Q").focus();
+    h.run();
+    // Appended to the value shown: Q × 10^300.
+    h.get_by_role_and_label(text_input, "Q").type_text("e300");
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    h.run();
+    assert_eq!(h.state().preset.axes[0].backlash.q_um, before);
+    assert!(
+        h.query_by_label_contains(&refused).is_some(),
+        "the message names the refused value: {:?}",
+        h.state().field_errors
+    );
+    assert_eq!(
+        h.state()
+            .fields
+            .get("axes.x.backlash.q_um")
+            .cloned()
+            .unwrap_or_else(|| shown.clone()),
+        shown,
+        "the field shows the value in force, not the refused one"
+    );
+    let node_value = h
+        .get_by_role_and_label(text_input, "Q")
+        .accesskit_node()
+        .value();
+    assert_eq!(node_value.as_deref(), Some(shown.as_str()));
+    // Leaving the field untouched keeps the message…
+    h.get_by_role_and_label(text_input, "Q").focus();
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    assert!(h.query_by_label_contains(&refused).is_some());
+    // … typing the value in force again clears it: nothing is refused any more.
+    h.get_by_role_and_label(text_input, "Q").focus();
+    h.run();
+    h.key_press(egui::Key::Backspace);
+    h.run();
+    let last = shown.chars().last().expect("a digit").to_string();
+    h.get_by_role_and_label(text_input, "Q").type_text(&last);
+    h.run();
+    h.key_press(egui::Key::Enter);
+    h.run();
+    assert!(
+        h.query_by_label_contains("refused").is_none(),
+        "the error goes once the field holds the value in force"
+    );
+}
+
+#[test]
+fn switching_scenario_with_unsaved_edits_asks_first() {
+    let tmp_dir = tempfile::tempdir().expect("tempdir");
+    let mut h = harness(default_wb());
+    h.run();
+    assert!(
+        h.state_mut()
+            .edit("axes.x.backlash.q_um", |p| p.axes[0].backlash.q_um = 9.5)
+    );
+    h.run();
+    // Cancel: nothing changes, the edit stays.
+    h.get_by_label("Scenario").click();
+    h.run();
+    h.get_by_label("xy_circle.ron").click();
+    h.run();
+    assert_eq!(
+        h.state().pending,
+        Some(super::Pending::Scenario("xy_circle.ron".into()))
+    );
+    assert!(
+        h.query_by_label("Unsaved edits").is_some(),
+        "the question is asked"
+    );
+    assert_eq!(h.state().preset.name, "default", "nothing loaded yet");
+    h.get_by_label("Cancel").click();
+    h.run();
+    assert_eq!(h.state().preset.name, "default");
+    assert_eq!(
+        h.state().preset.axes[0].backlash.q_um,
+        9.5,
+        "the edit is kept"
+    );
+    // Save: the preset is written where the Path field says, then the scenario loads.
+    let path = tmp_dir.path().join("kept.ron");
+    h.state_mut().path_input = path.display().to_string();
+    h.get_by_label("Scenario").click();
+    h.run();
+    h.get_by_label("xy_circle.ron").click();
+    h.run();
+    h.get_by_label("Save").click();
+    h.run();
+    assert_eq!(h.state().preset.name, "xy_circle", "loaded after the save");
+    let saved = axisbench::preset::load(&path.display().to_string()).expect("saved preset loads");
+    assert_eq!(saved.preset.axes[0].backlash.q_um, 9.5, "with the edit");
+    // Discard: the edit goes, as asked.
+    assert!(
+        h.state_mut()
+            .edit("axes.x.servo.kp_per_s", |p| p.axes[0].servo.kp_per_s *= 1.5)
+    );
+    h.state_mut()
+        .request(super::Pending::Scenario("default.ron".into()));
+    h.run();
+    assert!(
+        h.query_by_label("Unsaved edits").is_some(),
+        "pending {:?}, status {}",
+        h.state().pending,
+        h.state().status
+    );
+    h.get_by_label("Discard").click();
+    h.run();
+    assert_eq!(h.state().preset.name, "default");
+    // Quitting asks too; Discard lets the window close.
+    assert!(
+        h.state_mut()
+            .edit("axes.x.backlash.q_um", |p| p.axes[0].backlash.q_um = 3.0)
+    );
+    h.state_mut().request(super::Pending::Quit);
+    h.run();
+    assert!(h.query_by_label("Unsaved edits").is_some());
+    assert!(!h.state().close_now);
+    h.get_by_label("Discard").click();
+    h.run();
+    assert!(h.state().quit_allowed, "Discard lets the window close");
+}
+
+#[test]
+fn first_open_says_press_run_and_the_end_of_the_program_is_said() {
+    let mut h = harness(default_wb());
+    h.run();
+    assert!(
+        h.query_by_label_contains("Press Run").is_some(),
+        "a hint over the empty plots"
+    );
+    // Run the program to its end: the status line says so.
+    h.state().live.advance(200_000);
+    h.run();
+    assert!(h.query_by_label_contains("Press Run").is_none());
+    assert!(
+        h.query_by_label_contains("program finished at t =")
+            .is_some(),
+        "the end is said"
+    );
+    // A scenario brings its own speed and view: the warm-up at 1000×, the whole run shown.
+    h.state_mut().load_scenario("thermal_warmup.ron");
+    h.run();
+    let wb = h.state();
+    assert_eq!(wb.live.lock().speed, 1000.0);
+    assert!(wb.scope.whole_run);
+}
+
+#[test]
+fn every_time_plot_holds_one_unit_and_the_cursors_read_out_with_units() {
+    for name in axisbench::preset::SHIPPED_PRESETS {
+        let wb = match Workbench::new_embedded(name) {
+            Ok(wb) => wb,
+            Err(e) => panic!("{name}: {e:#}"),
+        };
+        wb.live.advance(4_000);
+        let s = wb.live.lock();
+        for a in &wb.preset.axes {
+            for p in super::scope::plot_defs(&a.name, &s.ring) {
+                for l in &p.lines {
+                    let u = axisbench::trace::display_unit_of(s.ring.unit(&l.col))
+                        .map(|u| u.name)
+                        .unwrap_or("");
+                    // µm lines hold m and are shown in µm; the rest in their display unit.
+                    let ok = u == p.unit || (p.unit == "um" && u == "mm");
+                    assert!(
+                        ok,
+                        "{name}: {} ({u}) in plot {} [{}]",
+                        l.col, p.title, p.unit
+                    );
+                }
+            }
+        }
+    }
+    let mut wb = default_wb();
+    wb.live.advance(16_000);
+    wb.scope.cursors = [Some(0.5), Some(1.5)];
+    let mut h = harness(wb);
+    h.run();
+    assert!(
+        h.query_by_label_contains("Δt = 1 s").is_some(),
+        "Δt with its unit"
+    );
+    assert!(
+        h.query_all_by_label_contains(" µm").count() >= 2,
+        "values with their unit"
+    );
+}
+
+#[test]
+fn the_whole_run_history_is_bounded_and_keeps_the_extremes() {
+    let mut wb = Workbench::new_embedded("thermal_warmup.ron").expect("warm-up");
+    wb.scope.whole_run = true;
+    // A long stretch of the warm-up, in T3 steps.
+    let steps = 2_000_000;
+    wb.live.advance(steps);
+    let s = wb.live.lock();
+    let t_end = s.machine.t_s();
+    let i = s.ring.index("x.pos").expect("position column");
+    let pts = s.history.points(i, 1_000_000, |v| v);
+    assert!(pts.len() <= 2 * 4096, "{} points", pts.len());
+    assert!(
+        pts.last().is_some_and(|p| p[0] > 0.9 * t_end),
+        "the history reaches the end of the run"
+    );
+    assert!(
+        pts.first().is_some_and(|p| p[0] < 0.1 * t_end),
+        "and its start"
+    );
+    let hi = pts.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max);
+    let ring_hi = s
+        .ring
+        .col("x.pos")
+        .expect("ring")
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert!(hi >= ring_hi - 1e-12, "the history keeps the largest value");
 }

@@ -178,7 +178,12 @@ fn foreign_hint(e: TraceError, found: Option<(&Preset, &[String])>) -> DiagnoseE
                     .mapping
                     .as_deref()
                     .and_then(|t| Mapping::parse(t).ok())
-                    .map(|m| m.entries.iter().map(|e| e.source.clone()).collect::<Vec<_>>().join(", "))
+                    .map(|m| m
+                        .entries
+                        .iter()
+                        .map(|e| e.source.clone())
+                        .collect::<Vec<_>>()
+                        .join(", "))
                     .unwrap_or_default()
             ),
         ),
@@ -200,7 +205,11 @@ fn foreign_hint(e: TraceError, found: Option<(&Preset, &[String])>) -> DiagnoseE
         names => format!(
             ": these are the columns {} maps: use {}, or --map",
             names.join(", "),
-            names.iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(" or ")
+            names
+                .iter()
+                .map(|n| format!("`{n}`"))
+                .collect::<Vec<_>>()
+                .join(" or ")
         ),
     };
     DiagnoseError::Record { file, reason }

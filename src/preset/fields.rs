@@ -64,7 +64,7 @@ impl Num {
         if self.unit.is_empty() {
             format!("{lo} … {}", self.hi)
         } else {
-            format!("{lo} … {} {}", self.hi, self.unit)
+            format!("{lo} … {} {}", self.hi, crate::units::symbol(self.unit))
         }
     }
 

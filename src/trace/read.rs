@@ -345,7 +345,9 @@ fn columns(
             // A header without t[s], or with a column that is not signal[unit], is another
             // layout, not a broken trace: say so with its columns, so a caller can name the
             // mapping that reads it.
-            let native = headers.iter().any(|h| split_header(h).is_some_and(|(n, _)| n == "t"))
+            let native = headers
+                .iter()
+                .any(|h| split_header(h).is_some_and(|(n, _)| n == "t"))
                 && headers.iter().all(|h| split_header(h).is_some());
             if !native {
                 return Err(TraceError::Foreign {

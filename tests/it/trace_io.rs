@@ -571,3 +571,48 @@ fn a_flush_inside_a_run_ends_the_columns_on_a_cache_line() {
     let t = Trace::new();
     assert_eq!(t.line_aligned_rows(5), 5);
 }
+
+/// A foreign layout read under a preset without its mapping names the columns found, the
+/// preset that maps them and `--map`; a native trace is read as native under any preset,
+/// and its own bad row is what is reported.
+#[test]
+fn layout_errors_say_which_preset_or_mapping_reads_the_file() {
+    use axisbench::diagnose::read_record_bytes;
+    use axisbench::preset::load_embedded;
+    let default = load_embedded("default.ron").expect("default").preset;
+    let emps = load_embedded("emps.ron").expect("emps").preset;
+    let foreign = "t_s,qg_m,qm_m,vir_V,force_N\n0,0,0,0,0\n0.001,0,0,0,0\n";
+    let e = read_record_bytes(foreign.as_bytes(), "emps.csv", &default, None)
+        .expect_err("not readable without a mapping")
+        .to_string();
+    for want in ["emps.csv", "t_s, qg_m", "`emps.ron`", "--map"] {
+        assert!(e.contains(want), "missing {want:?} in: {e}");
+    }
+    // Under emps.ron the mapping reads it.
+    assert!(read_record_bytes(foreign.as_bytes(), "emps.csv", &emps, None).is_ok());
+    // A layout no shipped preset maps: the columns and how to give a mapping.
+    let other = "time,position\n0,0\n";
+    let e = read_record_bytes(other.as_bytes(), "odd.csv", &emps, None)
+        .expect_err("no mapping reads it")
+        .to_string();
+    assert!(
+        e.contains("odd.csv") && e.contains("time") && e.contains("wants the columns"),
+        "{e}"
+    );
+    // A native trace whose time goes backwards, read under emps.ron: the bad line, not the
+    // mapping's complaint.
+    let mut native = String::from("t[s],x.cmd[mm],x.pos[mm]\n");
+    for i in 0..20 {
+        let t = if i == 12 { 0.0001 } else { i as f64 * 0.001 };
+        native += &format!("{t},0,0\n");
+    }
+    for p in [&default, &emps] {
+        let e = read_record_bytes(native.as_bytes(), "native.csv", p, None)
+            .expect_err("time goes backwards")
+            .to_string();
+        assert!(
+            e.contains("native.csv:14") && e.contains("does not increase"),
+            "{e}"
+        );
+    }
+}
