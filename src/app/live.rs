@@ -103,7 +103,7 @@ impl History {
     /// Signal `i` near `t_s`: the middle of its bucket's range (the history keeps no more).
     pub fn value_at(&self, i: usize, t_s: f64) -> Option<f64> {
         let b = (t_s / self.width_s).floor();
-        if !(b >= 0.0) {
+        if !b.is_finite() || b < 0.0 {
             return None;
         }
         let b = b as usize;

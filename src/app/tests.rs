@@ -306,6 +306,12 @@ fn diagnose_view_runs_and_applies_the_fitted_effect() {
         assert_eq!(rep.verdict, "coulomb_friction");
         assert_eq!(wb.preset.axes[0].friction.coulomb_n, 0.0, "not applied yet");
     }
+    apply_belongs_to_its_preset(&mut h);
+}
+
+/// Apply lists its diff, refuses a result computed on another preset or before an edit,
+/// and is undone in one click.
+fn apply_belongs_to_its_preset(h: &mut Harness<'static, Workbench>) {
     // What Apply will change is listed field by field before it is clicked.
     assert!(
         h.query_by_label_contains("Apply will change").is_some(),
