@@ -93,7 +93,8 @@ pub fn exit_status(e: &anyhow::Error) -> i32 {
 pub struct Cli {
     #[command(subcommand)]
     pub command: Option<Command>,
-    /// With no command: open the workbench on this preset instead of the saved session.
+    /// With no command: open the workbench on this preset file (or `embedded:NAME.ron`, a
+    /// shipped scenario) instead of the saved session.
     #[arg(long, global = false)]
     pub preset: Option<PathBuf>,
     /// With no command: open with the model paused (it runs from the first frame otherwise).

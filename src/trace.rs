@@ -102,7 +102,7 @@ pub enum TraceError {
     /// signal[unit]) and no mapping was given: a foreign layout. Carries the columns found,
     /// so the caller can say which mapping reads them.
     #[error(
-        "{file}: the columns {} are not a TRACE_FORMAT trace (it needs t[s] and axis.signal[unit] columns): give a column mapping (--map, or a preset whose diagnose.mapping reads them)",
+        "{file}: the columns {} are not a TRACE_FORMAT trace (it needs a time column t[s] and axis.signal[unit] columns): give a column mapping (--map, or a preset whose diagnose.mapping reads them)",
         quote(&.columns.join(", "), 400)
     )]
     Foreign {

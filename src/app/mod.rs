@@ -1105,9 +1105,20 @@ impl eframe::App for App {
 pub fn run(preset: Option<PathBuf>, paused: bool) -> Result<()> {
     let mut wb = Workbench::open_session()?;
     if let Some(p) = preset {
-        wb.open_file(p.clone());
-        if wb.path.as_ref() != Some(&p) {
-            anyhow::bail!("{}", wb.status);
+        // `embedded:NAME.ron` opens a shipped scenario, with its speed and view.
+        match p.to_str().and_then(|s| s.strip_prefix("embedded:")) {
+            Some(name) => {
+                wb.load_scenario(name);
+                if wb.origin != name {
+                    anyhow::bail!("{}", wb.status);
+                }
+            }
+            None => {
+                wb.open_file(p.clone());
+                if wb.path.as_ref() != Some(&p) {
+                    anyhow::bail!("{}", wb.status);
+                }
+            }
         }
     }
     wb.live.lock().running = !paused;

@@ -164,7 +164,7 @@ fn foreign_hint(e: TraceError, found: Option<(&Preset, &[String])>) -> DiagnoseE
         TraceError::Foreign { file, .. } => (
             file.clone(),
             format!(
-                "the columns {} are not a TRACE_FORMAT trace (it needs t[s] and axis.signal[unit] columns)",
+                "the columns {} are not a TRACE_FORMAT trace (it needs a time column t[s] and axis.signal[unit] columns)",
                 crate::trace::quote(&columns.join(", "), 400)
             ),
         ),
