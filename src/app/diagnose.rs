@@ -500,7 +500,7 @@ fn plots_ui(rep: &Report, s: &axisbench::diagnose::Series, ui: &mut egui::Ui, fu
                 if j > i {
                     pu.polygon(
                         Polygon::new(
-                            r.name(),
+                            r.name().replace('_', " "),
                             PlotPoints::new(vec![[t0, lo], [t1, lo], [t1, hi], [t0, hi]]),
                         )
                         .fill_color(regime_color(r, SHADE_ALPHA))

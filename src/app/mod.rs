@@ -297,7 +297,11 @@ impl Workbench {
             let n = Preset::from_ron(&self.saved_ron, "saved")
                 .map(|p| p.diff(&self.preset).len())
                 .unwrap_or(0);
-            ui.label(format!("{n} fields differ from the saved preset."));
+            ui.label(if n == 1 {
+                "1 field differs from the saved preset.".to_owned()
+            } else {
+                format!("{n} fields differ from the saved preset.")
+            });
             ui.horizontal(|ui| {
                 if ui.button("Save").clicked() {
                     answer = Some(Answer::Save);

@@ -265,9 +265,11 @@ pub fn plot_defs(a: &str, ring: &Ring) -> Vec<PlotDef> {
 /// Closest grid lines are allowed to come, px (the plot's `grid_spacing` minimum, which
 /// egui_plot hands the spacer as `base_step_size` in data units).
 const GRID_MIN_PX: f32 = 8.0;
-/// Labelled grid lines are at least this far apart, px (egui_plot fades labels closer than
-/// 30 px).
-const LABEL_PX: f64 = 32.0;
+/// Labelled grid lines are at least this far apart, px: a line of text and a gap, so a
+/// 60 px plot still carries three labels (the y axis is told to draw labels this close).
+const LABEL_PX: f64 = 22.0;
+/// Closest two labels may come when a plot would otherwise carry only one, px.
+const MIN_LABEL_PX: f64 = 14.0;
 
 /// The smallest 1-2-5 step at least `x`.
 fn nice_step_at_least(x: f64) -> f64 {
@@ -289,7 +291,17 @@ pub fn nice_grid(input: GridInput) -> Vec<GridMark> {
         return vec![];
     }
     let px_per_unit = f64::from(GRID_MIN_PX) / base;
-    let major = nice_step_at_least(LABEL_PX / px_per_unit);
+    let mut major = nice_step_at_least(LABEL_PX / px_per_unit);
+    // At least two labels, even on a short plot: the next finer 1-2-5 step while fewer
+    // than two land inside (down to one text height, [`MIN_LABEL_PX`]).
+    let majors_in = |m: f64| ((hi / m).floor() - (lo / m).ceil() + 1.0).max(0.0);
+    while majors_in(major) < 2.0 {
+        let finer = nice_step_at_least(major * 0.45);
+        if finer >= major || finer * px_per_unit < MIN_LABEL_PX {
+            break;
+        }
+        major = finer;
+    }
     let mantissa = major / 10f64.powf(major.log10().floor());
     let minor = if (mantissa - 2.0).abs() < 1e-6 {
         major / 2.0
@@ -314,6 +326,8 @@ pub fn nice_grid(input: GridInput) -> Vec<GridMark> {
                 step_size: if on_major { major } else { minor },
             }
         })
+        // egui_plot draws a label for every mark it gets, inside the plot or not.
+        .filter(|m| m.value >= lo && m.value <= hi)
         .collect()
 }
 
@@ -560,15 +574,22 @@ fn plot_ui(
         .link_axis(group, [true, false])
         .link_cursor(group, [true, false])
         .x_axis_label("t [s]")
-        .y_axis_label(if unit_sym.is_empty() {
-            "[-]".to_owned()
-        } else {
-            format!("[{unit_sym}]")
-        })
-        .y_axis_min_width(52.0)
+        .custom_y_axes(vec![
+            egui_plot::AxisHints::new_y()
+                .label(if unit_sym.is_empty() {
+                    "[-]".to_owned()
+                } else {
+                    format!("[{unit_sym}]")
+                })
+                .formatter(tick)
+                .min_thickness(52.0)
+                .label_spacing(egui::Rangef::new(
+                    MIN_LABEL_PX as f32 - 1.0,
+                    MIN_LABEL_PX as f32,
+                )),
+        ])
         .grid_spacing(egui::Rangef::new(GRID_MIN_PX, 60.0))
         .y_grid_spacer(nice_grid)
-        .y_axis_formatter(tick)
         .label_formatter(move |hp| {
             Some(match hp {
                 egui_plot::HoverPosition::NearDataPoint {
