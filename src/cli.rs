@@ -35,6 +35,7 @@ macro_rules! say_raw {
 }
 
 mod diag;
+mod tune;
 
 /// A flag or argument outside what it can mean: bad usage, exit status 2 (bad input,
 /// a file that does not parse or a preset that is invalid, exits with 1).
@@ -232,6 +233,41 @@ pub enum Command {
         #[arg(long)]
         residuals: Option<PathBuf>,
     },
+    /// Auto-tune the compensation on the simulated machine: search the parameters for the
+    /// smallest error change at the program's reversals, print a before/after table per
+    /// reversal, write the tuned preset. Never returns values worse than the start.
+    Tune {
+        /// Preset file, or `embedded:NAME.ron` for a shipped one.
+        #[arg(long, default_value = "embedded:default.ron")]
+        preset: String,
+        /// Axis to tune (default: the preset's first).
+        #[arg(long)]
+        axis: Option<String>,
+        /// What to tune, comma-separated: backlash, quadrant, thermal, cross.
+        #[arg(long, default_value = "backlash,quadrant")]
+        what: String,
+        /// Program to tune on instead of the preset's (first channel).
+        #[arg(long)]
+        program: Option<PathBuf>,
+        /// Write the tuned preset (and its programs, next to it) here.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write the report (before/after figures, values, simulations) as JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Objective weights per µm: `peak=1,settled=1,rms=0.2` (the defaults).
+        #[arg(long)]
+        weights: Option<String>,
+        /// Seed of the extra starts (same seed, same result).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Nelder–Mead iterations per start.
+        #[arg(long, default_value_t = 80)]
+        iters: u64,
+        /// Override a preset field before tuning (repeatable), as for simulate.
+        #[arg(long = "set", value_name = "PATH=VALUE")]
+        sets: Vec<String>,
+    },
     /// Blind check of the diagnosis: generated cases with hidden effects.
     DiagnoseEval {
         /// Which generator makes the records: `independent` (a second simulator sharing no
@@ -418,6 +454,32 @@ pub fn run(cli: Cli) -> Result<()> {
                 apply,
             })
         }
+        Some(Command::Tune {
+            preset,
+            axis,
+            what,
+            program,
+            out,
+            report,
+            weights,
+            seed,
+            iters,
+            sets,
+        }) => {
+            count_flag("--iters", iters, 1, 100_000)?;
+            tune::run(tune::Args {
+                preset,
+                axis,
+                what,
+                program,
+                out,
+                report,
+                weights,
+                seed,
+                iters,
+                sets,
+            })
+        }
         Some(Command::DiagnoseEval {
             generator,
             cases,
@@ -545,7 +607,7 @@ pub fn load_with_sets(path: &str, sets: &[String]) -> Result<LoadedPreset> {
     Ok(lp)
 }
 
-fn program_texts(lp: &LoadedPreset, program: Option<&PathBuf>) -> Result<Vec<(String, String)>> {
+pub(crate) fn program_texts(lp: &LoadedPreset, program: Option<&PathBuf>) -> Result<Vec<(String, String)>> {
     let mut texts = Vec::new();
     for (i, name) in lp.preset.scenario.programs.iter().enumerate() {
         match (program, i) {

@@ -26,6 +26,7 @@ pub mod servo;
 pub mod signal;
 pub mod table;
 pub mod trace;
+pub mod tune;
 pub mod units;
 
 pub use machine::{Machine, MachineError};

@@ -1,0 +1,141 @@
+//! `axisbench tune`: the compensation searched on the simulated machine, a before/after
+//! table per reversal, the tuned preset written with its programs (all or nothing).
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Context, Result};
+use axisbench::tune::{self, Job, Progress, Weights, What};
+use axisbench::units::{fmt_qty, mm_to_um};
+
+use super::{load_with_sets, program_texts};
+
+pub struct Args {
+    pub preset: String,
+    pub axis: Option<String>,
+    pub what: String,
+    pub program: Option<PathBuf>,
+    pub out: Option<PathBuf>,
+    pub report: Option<PathBuf>,
+    pub weights: Option<String>,
+    pub seed: u64,
+    pub iters: u64,
+    pub sets: Vec<String>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let what = What::parse_list(&a.what)?;
+    let weights = match &a.weights {
+        Some(w) => Weights::parse(w)?,
+        None => Weights::default(),
+    };
+    let mut lp = load_with_sets(&a.preset, &a.sets)?;
+    let mut texts = program_texts(&lp, a.program.as_ref())?;
+    if let (Some(p), Some(first)) = (&a.program, texts.first_mut()) {
+        // The tuned preset runs the program it was tuned on.
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .with_context(|| format!("--program {}: not a file name", p.display()))?;
+        first.0 = name.clone();
+        if let Some(s) = lp.preset.scenario.programs.first_mut() {
+            *s = name;
+        }
+    }
+    let axis = a
+        .axis
+        .clone()
+        .or_else(|| lp.preset.axes.first().map(|x| x.name.clone()))
+        .context("the preset has no axis")?;
+    let job = Job {
+        preset: &lp.preset,
+        programs: &texts,
+        axis,
+        what,
+        weights,
+        seed: a.seed,
+        max_iters: a.iters,
+        threads: 0,
+    };
+    let cancel = AtomicBool::new(false);
+    let report = |n: usize, f: f64| {
+        eprint!("\r  {n} simulations, best objective {}        ", fmt_qty(f, ""));
+    };
+    let out = tune::tune(
+        &job,
+        &Progress {
+            report: &report,
+            cancel: &cancel,
+        },
+    )?;
+    eprintln!();
+    print_outcome(&out);
+    if let Some(path) = &a.out {
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .with_context(|| format!("--out {}: not a file name", path.display()))?;
+        let mut files = vec![(name, out.preset.to_ron()?.into_bytes())];
+        files.extend(texts.iter().map(|(n, t)| (n.clone(), t.clone().into_bytes())));
+        axisbench::fsutil::write_all_atomic(&dir, &files)
+            .with_context(|| format!("writing the tuned preset {}", path.display()))?;
+        say!("tuned preset: {} (with its programs)", path.display());
+    }
+    if let Some(path) = &a.report {
+        let json = serde_json::to_string_pretty(&out)?;
+        axisbench::fsutil::write_atomic(path, json.as_bytes())
+            .with_context(|| format!("writing the report {}", path.display()))?;
+        say!("report: {}", path.display());
+    }
+    Ok(())
+}
+
+fn print_outcome(o: &tune::Outcome) {
+    let w = &o.weights;
+    say!(
+        "tune of {} on axis {}: objective = {}·mean peak change + {}·mean |settled change| + {}·RMS error (µm)",
+        o.what.iter().map(|w| w.name()).collect::<Vec<_>>().join(", "),
+        o.axis,
+        w.peak,
+        w.settled,
+        w.rms
+    );
+    say!(
+        "  objective {} -> {}{}; {} simulations in {:.2} s ({:.0} per s)",
+        fmt_qty(o.before.objective, ""),
+        fmt_qty(o.after.objective, ""),
+        if o.kept_start {
+            " (no start beat the values given: they are kept)"
+        } else {
+            ""
+        },
+        o.simulations,
+        o.wall_s,
+        o.simulations_per_s
+    );
+    say!("  reversal                 peak change before -> after     settled change before -> after");
+    for (b, a) in o.before.reversals.iter().zip(&o.after.reversals) {
+        say!(
+            "  {} at t = {:>8.4} s   {:>10} -> {:<10}        {:>10} -> {:<10}",
+            b.direction.arrow(),
+            b.t_s,
+            fmt_qty(mm_to_um(b.peak_err_mm), "um"),
+            fmt_qty(mm_to_um(a.peak_err_mm), "um"),
+            fmt_qty(mm_to_um(b.settled_err_mm), "um"),
+            fmt_qty(mm_to_um(a.settled_err_mm), "um"),
+        );
+    }
+    say!(
+        "  RMS position error {} -> {}",
+        fmt_qty(o.before.rms_um, "um"),
+        fmt_qty(o.after.rms_um, "um")
+    );
+    say!("  tuned values:");
+    for (k, v) in &o.values {
+        say!("    {k} = {}", axisbench::units::fmt_sig(*v, 6));
+    }
+}

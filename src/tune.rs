@@ -1,0 +1,822 @@
+//! Auto-tune of the compensation on the simulated machine: backlash (seed 000) and quadrant
+//! (seed 003) parameters searched by Nelder–Mead (argmin) against the reversal figures
+//! `simulate` reports, from several starts run side by side; thermal (seed 002) and cross
+//! tables (seed 004) through their existing measurements.
+//!
+//! The objective is what a service engineer reads off a reversal test: per reversal, the
+//! peak and the settled change of the error (cmd − pos) from its value in the old
+//! direction ([`crate::analysis::summarize`], exactly as `simulate` prints them), averaged
+//! over the program's reversals, plus the RMS position error; each term in µm with a stated
+//! weight. The result is never worse than the start: if no start beats the shipped values,
+//! they are returned unchanged.
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use argmin::core::{CostFunction, Executor, State};
+use argmin::solver::neldermead::NelderMead;
+
+use crate::analysis::{self, Reversal};
+use crate::machine::{Machine, MachineError};
+use crate::measure;
+use crate::preset::comp::{Injection, OutputMode};
+use crate::preset::{AxisParams, Preset};
+use crate::units::mm_to_um;
+
+/// What a tune may change.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum What {
+    /// Q, and each direction's output mode with its N and B, or M (seed 000).
+    Backlash,
+    /// M0, T0, A, B, C, D and P0 with the adaptive part on (seed 003).
+    Quadrant,
+    /// k and a through Step 1 and Step 2 (seed 002).
+    Thermal,
+    /// The cross (sag) tables through their measurement (seed 004).
+    Cross,
+}
+
+impl What {
+    /// Every kind, in the order a tune applies them.
+    pub const ALL: [What; 4] = [What::Backlash, What::Quadrant, What::Thermal, What::Cross];
+
+    /// The name `--what` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            What::Backlash => "backlash",
+            What::Quadrant => "quadrant",
+            What::Thermal => "thermal",
+            What::Cross => "cross",
+        }
+    }
+
+    /// Parses a comma-separated list (`backlash,quadrant`).
+    pub fn parse_list(text: &str) -> Result<Vec<What>, TuneError> {
+        let mut out = vec![];
+        for part in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let w = What::ALL
+                .into_iter()
+                .find(|w| w.name() == part)
+                .ok_or_else(|| TuneError::Unknown(part.to_owned()))?;
+            if !out.contains(&w) {
+                out.push(w);
+            }
+        }
+        if out.is_empty() {
+            return Err(TuneError::NothingToTune);
+        }
+        Ok(out)
+    }
+}
+
+/// Why a tune cannot run or stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum TuneError {
+    /// `--what` names nothing.
+    #[error("--what is empty: name at least one of backlash, quadrant, thermal, cross")]
+    NothingToTune,
+    /// `--what` names something else.
+    #[error("--what {0}: not one of backlash, quadrant, thermal, cross")]
+    Unknown(String),
+    /// The axis is not in the preset.
+    #[error("axis '{axis}' is not in preset '{preset}' (its axes: {have})")]
+    NoAxis {
+        /// The axis asked for.
+        axis: String,
+        /// The preset's name.
+        preset: String,
+        /// Its axes.
+        have: String,
+    },
+    /// The compensation to tune is switched off.
+    #[error(
+        "{what} compensation is off on axis {axis} in this preset: switch it on first (--set axes.{axis}.{what}.enabled=true)"
+    )]
+    Disabled {
+        /// The compensation.
+        what: &'static str,
+        /// The axis.
+        axis: String,
+    },
+    /// The reversal figures need a reversal.
+    #[error(
+        "the program has no reversal on axis {axis}: the tune works on the error change at reversals (give a program that reverses, --program)"
+    )]
+    NoReversal {
+        /// The axis.
+        axis: String,
+    },
+    /// A weight is negative, not finite, or all are zero.
+    #[error("weights: {0}")]
+    Weights(String),
+    /// Cross tables need a crossbeam.
+    #[error("cross: this preset has no crossbeam to measure tables on")]
+    NoCrossbeam,
+    /// The user cancelled; nothing was changed.
+    #[error("cancelled: the preset is unchanged")]
+    Cancelled,
+    /// The simulated machine refused the preset or diverged.
+    #[error(transparent)]
+    Machine(#[from] MachineError),
+}
+
+/// The objective's weights, per µm of each figure.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Weights {
+    /// On the mean peak error change at a reversal.
+    pub peak: f64,
+    /// On the mean |settled error change| at a reversal (the lost motion left).
+    pub settled: f64,
+    /// On the RMS position error over the run.
+    pub rms: f64,
+}
+
+impl Default for Weights {
+    /// Peak and settled change count alike; the RMS error a fifth as much, so that a tune
+    /// does not trade a reversal glitch for a small shift of the whole run.
+    fn default() -> Self {
+        Weights {
+            peak: 1.0,
+            settled: 1.0,
+            rms: 0.2,
+        }
+    }
+}
+
+impl Weights {
+    /// Parses `peak=1,settled=1,rms=0.2` (any subset; the rest keep their defaults).
+    pub fn parse(text: &str) -> Result<Weights, TuneError> {
+        let mut w = Weights::default();
+        for part in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let (k, v) = part
+                .split_once('=')
+                .ok_or_else(|| TuneError::Weights(format!("'{part}': expected name=value")))?;
+            let v: f64 = v
+                .trim()
+                .parse()
+                .ok()
+                .filter(|v: &f64| v.is_finite() && *v >= 0.0)
+                .ok_or_else(|| {
+                    TuneError::Weights(format!("'{part}': the value must be a number ≥ 0"))
+                })?;
+            match k.trim() {
+                "peak" => w.peak = v,
+                "settled" => w.settled = v,
+                "rms" => w.rms = v,
+                other => {
+                    return Err(TuneError::Weights(format!(
+                        "'{other}': not one of peak, settled, rms"
+                    )));
+                }
+            }
+        }
+        if w.peak + w.settled + w.rms <= 0.0 {
+            return Err(TuneError::Weights("all weights are 0".into()));
+        }
+        Ok(w)
+    }
+}
+
+/// The figures of one run on the tuned axis.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Figures {
+    /// Each reversal, as `simulate` reports it.
+    pub reversals: Vec<Reversal>,
+    /// RMS position error, µm.
+    pub rms_um: f64,
+    /// The objective.
+    pub objective: f64,
+}
+
+/// What a tune needs: the preset, the programs, the axis and what to tune.
+pub struct Job<'a> {
+    /// The preset to start from (never changed).
+    pub preset: &'a Preset,
+    /// One program per channel: (name, text).
+    pub programs: &'a [(String, String)],
+    /// The axis whose reversals are scored and whose compensation is tuned.
+    pub axis: String,
+    /// What to tune.
+    pub what: Vec<What>,
+    /// The objective's weights.
+    pub weights: Weights,
+    /// Seeds the extra starts; the same seed gives the same result.
+    pub seed: u64,
+    /// Nelder–Mead iterations per start.
+    pub max_iters: u64,
+    /// Threads running starts side by side (0: all cores).
+    pub threads: usize,
+}
+
+/// Progress and cancel, shared with a GUI or the CLI's progress line.
+pub struct Progress<'a> {
+    /// Called with (evaluations so far, best objective so far).
+    pub report: &'a (dyn Fn(usize, f64) + Sync),
+    /// Set from outside to stop; the tune then returns [`TuneError::Cancelled`].
+    pub cancel: &'a AtomicBool,
+}
+
+/// The outcome of a tune.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Outcome {
+    /// The preset with the tuned values (the start itself when nothing beat it).
+    #[serde(skip)]
+    pub preset: Preset,
+    /// The axis tuned.
+    pub axis: String,
+    /// What was tuned.
+    pub what: Vec<What>,
+    /// The objective's weights.
+    pub weights: Weights,
+    /// Figures with the values the tune started from.
+    pub before: Figures,
+    /// Figures with the tuned values.
+    pub after: Figures,
+    /// Whether the start stayed (no start beat it).
+    pub kept_start: bool,
+    /// Simulations run.
+    pub simulations: usize,
+    /// Simulations per second of wall time.
+    pub simulations_per_s: f64,
+    /// Wall time of the tune, s.
+    pub wall_s: f64,
+    /// The objective after each evaluation that improved it: (evaluation, objective).
+    pub history: Vec<(usize, f64)>,
+    /// The tuned parameters: (preset path, value).
+    pub values: Vec<(String, f64)>,
+}
+
+/// One searched number: its preset path below the axis, its range, whether it is a whole
+/// number, and how it is read and written.
+#[derive(Clone, Copy)]
+struct Dim {
+    path: &'static str,
+    lo: f64,
+    hi: f64,
+    int: bool,
+    get: fn(&AxisParams) -> f64,
+    set: fn(&mut AxisParams, f64),
+}
+
+/// The backlash numbers searched for the modes each direction uses now.
+fn backlash_dims(a: &AxisParams) -> Vec<Dim> {
+    let mut d = vec![Dim {
+        path: "backlash.q_um",
+        lo: 0.0,
+        hi: (4.0 * a.backlash.q_um).max(50.0),
+        int: false,
+        get: |a| a.backlash.q_um,
+        set: |a, v| a.backlash.q_um = v,
+    }];
+    let dirs: [(OutputMode, [Dim; 3]); 2] = [
+        (
+            a.backlash.plus_to_minus.mode,
+            [
+                Dim {
+                    path: "backlash.plus_to_minus.parts_n",
+                    lo: 1.0,
+                    hi: 32.0,
+                    int: true,
+                    get: |a| f64::from(a.backlash.plus_to_minus.parts_n),
+                    set: |a, v| a.backlash.plus_to_minus.parts_n = v as u32,
+                },
+                Dim {
+                    path: "backlash.plus_to_minus.step_b_um",
+                    lo: 1.0,
+                    hi: 2000.0,
+                    int: false,
+                    get: |a| a.backlash.plus_to_minus.step_b_um,
+                    set: |a, v| a.backlash.plus_to_minus.step_b_um = v,
+                },
+                Dim {
+                    path: "backlash.plus_to_minus.cycles_m",
+                    lo: 1.0,
+                    hi: 64.0,
+                    int: true,
+                    get: |a| f64::from(a.backlash.plus_to_minus.cycles_m),
+                    set: |a, v| a.backlash.plus_to_minus.cycles_m = v as u32,
+                },
+            ],
+        ),
+        (
+            a.backlash.minus_to_plus.mode,
+            [
+                Dim {
+                    path: "backlash.minus_to_plus.parts_n",
+                    lo: 1.0,
+                    hi: 32.0,
+                    int: true,
+                    get: |a| f64::from(a.backlash.minus_to_plus.parts_n),
+                    set: |a, v| a.backlash.minus_to_plus.parts_n = v as u32,
+                },
+                Dim {
+                    path: "backlash.minus_to_plus.step_b_um",
+                    lo: 1.0,
+                    hi: 2000.0,
+                    int: false,
+                    get: |a| a.backlash.minus_to_plus.step_b_um,
+                    set: |a, v| a.backlash.minus_to_plus.step_b_um = v,
+                },
+                Dim {
+                    path: "backlash.minus_to_plus.cycles_m",
+                    lo: 1.0,
+                    hi: 64.0,
+                    int: true,
+                    get: |a| f64::from(a.backlash.minus_to_plus.cycles_m),
+                    set: |a, v| a.backlash.minus_to_plus.cycles_m = v as u32,
+                },
+            ],
+        ),
+    ];
+    for (mode, [n, b, m]) in dirs {
+        match mode {
+            OutputMode::Distance => d.extend([n, b]),
+            OutputMode::Time => d.push(m),
+            OutputMode::Lump | OutputMode::Function => {}
+        }
+    }
+    d
+}
+
+/// The quadrant numbers searched (M0 in the unit of its injection point).
+fn quadrant_dims(a: &AxisParams) -> Vec<Dim> {
+    let m0 = match a.quadrant.inject {
+        Injection::Torque => Dim {
+            path: "quadrant.m0_torque_nm",
+            lo: 0.0,
+            hi: (4.0 * a.quadrant.m0_torque_nm).max(2.0),
+            int: false,
+            get: |a| a.quadrant.m0_torque_nm,
+            set: |a, v| a.quadrant.m0_torque_nm = v,
+        },
+        Injection::Velocity => Dim {
+            path: "quadrant.m0_vel_mm_per_s",
+            lo: 0.0,
+            hi: (4.0 * a.quadrant.m0_vel_mm_per_s).max(5.0),
+            int: false,
+            get: |a| a.quadrant.m0_vel_mm_per_s,
+            set: |a, v| a.quadrant.m0_vel_mm_per_s = v,
+        },
+        Injection::Position => Dim {
+            path: "quadrant.m0_pos_um",
+            lo: 0.0,
+            hi: (4.0 * a.quadrant.m0_pos_um).max(20.0),
+            int: false,
+            get: |a| a.quadrant.m0_pos_um,
+            set: |a, v| a.quadrant.m0_pos_um = v,
+        },
+    };
+    vec![
+        m0,
+        Dim {
+            path: "quadrant.t0_ms",
+            lo: 0.5,
+            hi: 100.0,
+            int: false,
+            get: |a| a.quadrant.t0_ms,
+            set: |a, v| a.quadrant.t0_ms = v,
+        },
+        Dim {
+            path: "quadrant.a_mag",
+            lo: 1.0,
+            hi: 5.0,
+            int: false,
+            get: |a| a.quadrant.a_mag,
+            set: |a, v| a.quadrant.a_mag = v,
+        },
+        Dim {
+            path: "quadrant.b_rate",
+            lo: 0.5,
+            hi: 50.0,
+            int: false,
+            get: |a| a.quadrant.b_rate,
+            set: |a, v| a.quadrant.b_rate = v,
+        },
+        Dim {
+            path: "quadrant.c_mag",
+            lo: 0.5,
+            hi: 5.0,
+            int: false,
+            get: |a| a.quadrant.c_mag,
+            set: |a, v| a.quadrant.c_mag = v,
+        },
+        Dim {
+            path: "quadrant.d_rate",
+            lo: 0.5,
+            hi: 50.0,
+            int: false,
+            get: |a| a.quadrant.d_rate,
+            set: |a, v| a.quadrant.d_rate = v,
+        },
+        Dim {
+            path: "quadrant.p0_mm",
+            lo: 0.5,
+            hi: 200.0,
+            int: false,
+            get: |a| a.quadrant.p0_mm,
+            set: |a, v| a.quadrant.p0_mm = v,
+        },
+    ]
+}
+
+/// Runs the programs on `p` and returns the axis's figures.
+pub fn evaluate(
+    p: &Preset,
+    programs: &[(String, String)],
+    axis: &str,
+    w: &Weights,
+) -> Result<Figures, MachineError> {
+    let mut m = Machine::new(p, programs)?;
+    m.run(4.0 * 3600.0)?;
+    let sums = analysis::summarize(&m.trace);
+    let s = sums.into_iter().find(|s| s.axis == axis);
+    let (reversals, rms_um) = s.map_or((vec![], 0.0), |s| (s.reversals, mm_to_um(s.rms_err_mm)));
+    let n = reversals.len().max(1) as f64;
+    let peak: f64 = reversals
+        .iter()
+        .map(|r| mm_to_um(r.peak_err_mm))
+        .sum::<f64>()
+        / n;
+    let settled: f64 = reversals
+        .iter()
+        .map(|r| mm_to_um(r.settled_err_mm).abs())
+        .sum::<f64>()
+        / n;
+    let objective = w.peak * peak + w.settled * settled + w.rms * rms_um;
+    Ok(Figures {
+        reversals,
+        rms_um,
+        objective: if objective.is_finite() {
+            objective
+        } else {
+            f64::INFINITY
+        },
+    })
+}
+
+/// How long the programs run on `p` (to their end and the settling time), s.
+fn last_t(p: &Preset, programs: &[(String, String)]) -> Option<f64> {
+    let mut m = Machine::new(p, programs).ok()?;
+    m.set_recording(false);
+    m.run(4.0 * 3600.0).ok()?;
+    Some(m.t_s())
+}
+
+/// The search over one set of dimensions on a base preset: x in [0, 1]^n maps to the dims'
+/// ranges (whole numbers rounded); points outside are pulled onto the box.
+struct Problem<'a> {
+    base: &'a Preset,
+    axis_i: usize,
+    dims: &'a [Dim],
+    job: &'a Job<'a>,
+    shared: &'a Shared<'a>,
+}
+
+/// What every start shares: the count, the best so far and the cancel flag.
+struct Shared<'a> {
+    /// The start's run length, s (every candidate runs as long).
+    run_s: Option<f64>,
+    evals: AtomicUsize,
+    best: Mutex<(f64, Vec<(usize, f64)>)>,
+    progress: &'a Progress<'a>,
+}
+
+impl Problem<'_> {
+    fn preset_at(&self, x: &[f64]) -> Preset {
+        let mut p = self.base.clone();
+        if let Some(a) = p.axes.get_mut(self.axis_i) {
+            for (d, &u) in self.dims.iter().zip(x) {
+                let v = d.lo + u.clamp(0.0, 1.0) * (d.hi - d.lo);
+                (d.set)(a, if d.int { v.round() } else { v });
+            }
+        }
+        p
+    }
+
+    fn x_of(&self, p: &Preset) -> Vec<f64> {
+        let a = &p.axes[self.axis_i];
+        self.dims
+            .iter()
+            .map(|d| (((d.get)(a) - d.lo) / (d.hi - d.lo)).clamp(0.0, 1.0))
+            .collect()
+    }
+}
+
+impl CostFunction for Problem<'_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+
+    fn cost(&self, x: &Vec<f64>) -> Result<f64, argmin::core::Error> {
+        if self.shared.progress.cancel.load(Ordering::Relaxed) {
+            return Err(argmin::core::Error::msg("cancelled"));
+        }
+        let mut p = self.preset_at(x);
+        // The run's length is known from the start's run: one trace allocation, not a
+        // growing one (most of a short run's cost otherwise).
+        p.scenario.duration_s = self.shared.run_s;
+        // A point the preset's own checks refuse, or one that diverges, is simply bad.
+        let f = evaluate(&p, self.job.programs, &self.job.axis, &self.job.weights)
+            .map_or(f64::INFINITY, |f| f.objective);
+        // Outside the box: the box's value plus the distance, so the simplex comes back.
+        let out: f64 = x
+            .iter()
+            .map(|u| (u - u.clamp(0.0, 1.0)).abs())
+            .sum::<f64>();
+        let f = f + out * 100.0;
+        let k = self.shared.evals.fetch_add(1, Ordering::Relaxed) + 1;
+        if let Ok(mut b) = self.shared.best.lock()
+            && f < b.0
+        {
+            b.0 = f;
+            b.1.push((k, f));
+            (self.shared.progress.report)(k, f);
+        }
+        Ok(f)
+    }
+}
+
+/// Nelder–Mead stops when its simplex's objective values spread less than this (µm): a
+/// thousandth of a micrometre is far below what a machine shows.
+const SD_TOLERANCE: f64 = 1e-3;
+
+/// One start: Nelder–Mead from `x0` with a simplex of `step` per dimension.
+fn run_start(prob: Problem<'_>, x0: Vec<f64>, step: f64, iters: u64) -> Option<(Vec<f64>, f64)> {
+    let n = x0.len();
+    if n == 0 {
+        let f = prob.cost(&x0).ok()?;
+        return Some((x0, f));
+    }
+    let mut simplex = vec![x0.clone()];
+    for i in 0..n {
+        let mut v = x0.clone();
+        v[i] = if v[i] + step <= 1.0 {
+            v[i] + step
+        } else {
+            v[i] - step
+        };
+        simplex.push(v);
+    }
+    let solver = NelderMead::new(simplex).with_sd_tolerance(SD_TOLERANCE).ok()?;
+    let res = Executor::new(prob, solver)
+        .configure(|s| s.max_iters(iters))
+        .run()
+        .ok()?;
+    let st = res.state();
+    Some((st.get_best_param()?.clone(), st.get_best_cost()))
+}
+
+/// A start of one stage: the mode pair (backlash) and the point.
+struct Start {
+    base: Preset,
+    x0: Option<Vec<f64>>,
+}
+
+/// Runs the starts side by side and returns the best (preset, objective); ties go to the
+/// earlier start, so the result does not depend on the threads.
+fn stage(
+    job: &Job<'_>,
+    shared: &Shared<'_>,
+    axis_i: usize,
+    starts: Vec<Start>,
+    dims_of: fn(&AxisParams) -> Vec<Dim>,
+) -> Result<Option<(Preset, f64)>, TuneError> {
+    let threads = if job.threads == 0 {
+        std::thread::available_parallelism().map_or(2, |n| n.get())
+    } else {
+        job.threads
+    };
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<(Preset, f64)>>> = Mutex::new(vec![None; starts.len()]);
+    std::thread::scope(|sc| {
+        for _ in 0..threads.min(starts.len()).max(1) {
+            sc.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(s) = starts.get(i) else { break };
+                    let dims = s
+                        .base
+                        .axes
+                        .get(axis_i)
+                        .map(dims_of)
+                        .unwrap_or_default();
+                    let prob = Problem {
+                        base: &s.base,
+                        axis_i,
+                        dims: &dims,
+                        job,
+                        shared,
+                    };
+                    let x0 = s.x0.clone().unwrap_or_else(|| prob.x_of(&s.base));
+                    let out = run_start(prob, x0, 0.15, job.max_iters).map(|(x, f)| {
+                        let prob = Problem {
+                            base: &s.base,
+                            axis_i,
+                            dims: &dims,
+                            job,
+                            shared,
+                        };
+                        (prob.preset_at(&x), f)
+                    });
+                    if let Ok(mut r) = results.lock() {
+                        r[i] = out;
+                    }
+                }
+            });
+        }
+    });
+    if job.progress_cancelled(shared) {
+        return Err(TuneError::Cancelled);
+    }
+    let results = results.into_inner().unwrap_or_default();
+    Ok(results
+        .into_iter()
+        .flatten()
+        .fold(None, |best: Option<(Preset, f64)>, (p, f)| match best {
+            Some((_, bf)) if bf <= f => best,
+            _ => Some((p, f)),
+        }))
+}
+
+impl Job<'_> {
+    fn progress_cancelled(&self, shared: &Shared<'_>) -> bool {
+        shared.progress.cancel.load(Ordering::Relaxed)
+    }
+}
+
+/// `n` uniform numbers in [0, 1) for extra start `k`, from the job's seed.
+fn jitter(seed: u64, k: u64, n: usize) -> Vec<f64> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed.wrapping_add(k));
+    (0..n).map(|_| rng.r#gen::<f64>()).collect()
+}
+
+/// Tunes what `job` asks for and returns the outcome; the input preset is never changed.
+pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError> {
+    let t0 = std::time::Instant::now();
+    let axis_i = job
+        .preset
+        .axes
+        .iter()
+        .position(|a| a.name == job.axis)
+        .ok_or_else(|| TuneError::NoAxis {
+            axis: job.axis.clone(),
+            preset: job.preset.name.clone(),
+            have: job
+                .preset
+                .axes
+                .iter()
+                .map(|a| a.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+        })?;
+    let a = &job.preset.axes[axis_i];
+    for w in &job.what {
+        let on = match w {
+            What::Backlash => a.backlash.enabled,
+            What::Quadrant => a.quadrant.enabled,
+            What::Thermal => a.thermal.enabled,
+            What::Cross => true,
+        };
+        if !on {
+            return Err(TuneError::Disabled {
+                what: w.name(),
+                axis: job.axis.clone(),
+            });
+        }
+    }
+    if job.what.contains(&What::Cross) && !job.preset.crossbeam.enabled {
+        return Err(TuneError::NoCrossbeam);
+    }
+    let before = evaluate(job.preset, job.programs, &job.axis, &job.weights)?;
+    if before.reversals.is_empty()
+        && job
+            .what
+            .iter()
+            .any(|w| matches!(w, What::Backlash | What::Quadrant))
+    {
+        return Err(TuneError::NoReversal {
+            axis: job.axis.clone(),
+        });
+    }
+    let run_s = job
+        .preset
+        .scenario
+        .duration_s
+        .or_else(|| last_t(job.preset, job.programs));
+    let shared = Shared {
+        run_s,
+        evals: AtomicUsize::new(1),
+        best: Mutex::new((before.objective, vec![(1, before.objective)])),
+        progress,
+    };
+    let mut cur = job.preset.clone();
+    let mut cur_f = before.objective;
+    // Measured parts first: they change the machine the searched parts act on.
+    if job.what.contains(&What::Thermal) {
+        cur = tune_thermal(&cur, job)?;
+        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+    }
+    if job.what.contains(&What::Cross) {
+        cur.cross = measure::sag_tables(&cur, 9)?;
+        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+    }
+    if job.what.contains(&What::Backlash) {
+        let mut starts = vec![];
+        for m1 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
+            for m2 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
+                let mut p = cur.clone();
+                p.axes[axis_i].backlash.plus_to_minus.mode = m1;
+                p.axes[axis_i].backlash.minus_to_plus.mode = m2;
+                starts.push(Start { base: p, x0: None });
+            }
+        }
+        if let Some((p, f)) = stage(job, &shared, axis_i, starts, backlash_dims)?
+            && f < cur_f
+        {
+            cur = p;
+            cur_f = f;
+        }
+    }
+    if job.what.contains(&What::Quadrant) {
+        let mut p = cur.clone();
+        p.axes[axis_i].quadrant.adaptive = true;
+        let n = quadrant_dims(&p.axes[axis_i]).len();
+        let mut starts = vec![Start {
+            base: p.clone(),
+            x0: None,
+        }];
+        starts.extend((0..3).map(|k| Start {
+            base: p.clone(),
+            x0: Some(jitter(job.seed, k, n)),
+        }));
+        if let Some((p, f)) = stage(job, &shared, axis_i, starts, quadrant_dims)?
+            && f < cur_f
+        {
+            cur = p;
+            cur_f = f;
+        }
+    }
+    // Never worse than the start: the comparison is on the same figures.
+    let kept_start = cur_f >= before.objective;
+    let preset = if kept_start {
+        job.preset.clone()
+    } else {
+        cur
+    };
+    let after = evaluate(&preset, job.programs, &job.axis, &job.weights)?;
+    let values = tuned_values(&preset, axis_i, job);
+    let wall_s = t0.elapsed().as_secs_f64();
+    let simulations = shared.evals.load(Ordering::Relaxed) + 1;
+    let history = shared.best.into_inner().map(|b| b.1).unwrap_or_default();
+    Ok(Outcome {
+        preset,
+        axis: job.axis.clone(),
+        what: job.what.clone(),
+        weights: job.weights,
+        before,
+        after,
+        kept_start,
+        simulations,
+        simulations_per_s: simulations as f64 / wall_s.max(1e-9),
+        wall_s,
+        history,
+        values,
+    })
+}
+
+/// Step 1 (k) and Step 2 (a) of seed 002 on the simulated machine, as the workbench runs
+/// them: a two-hour warm-up program's measurements.
+fn tune_thermal(p: &Preset, job: &Job<'_>) -> Result<Preset, TuneError> {
+    let step1 = measure::thermal_step1(p, &job.axis, &[job.programs.to_vec()], 120.0)?;
+    let mut q = p.clone();
+    if let Some(a) = q.axes.iter_mut().find(|a| a.name == job.axis) {
+        a.thermal.k_per_um = step1.k_per_um;
+    }
+    let a_val = measure::thermal_step2(&q, &job.axis, job.programs, 600.0)?;
+    if let Some(a) = q.axes.iter_mut().find(|a| a.name == job.axis) {
+        a.thermal.a = a_val;
+    }
+    Ok(q)
+}
+
+/// The values of every searched number in `p`, by preset path.
+fn tuned_values(p: &Preset, axis_i: usize, job: &Job<'_>) -> Vec<(String, f64)> {
+    let a = &p.axes[axis_i];
+    let mut dims = vec![];
+    if job.what.contains(&What::Backlash) {
+        dims.extend(backlash_dims(a));
+    }
+    if job.what.contains(&What::Quadrant) {
+        dims.extend(quadrant_dims(a));
+    }
+    let mut out: Vec<(String, f64)> = dims
+        .iter()
+        .map(|d| (format!("axes.{}.{}", a.name, d.path), (d.get)(a)))
+        .collect();
+    if job.what.contains(&What::Thermal) {
+        out.push((format!("axes.{}.thermal.k_per_um", a.name), a.thermal.k_per_um));
+        out.push((format!("axes.{}.thermal.a", a.name), a.thermal.a));
+    }
+    out
+}
