@@ -62,7 +62,7 @@ fn flag(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64> {
 }
 
 /// A whole-number flag within `lo ..= hi`.
-fn count_flag(name: &str, value: u64, lo: u64, hi: u64) -> Result<u64> {
+pub(crate) fn count_flag(name: &str, value: u64, lo: u64, hi: u64) -> Result<u64> {
     if (lo..=hi).contains(&value) {
         Ok(value)
     } else {
@@ -454,32 +454,7 @@ pub fn run(cli: Cli) -> Result<()> {
                 apply,
             })
         }
-        Some(Command::Tune {
-            preset,
-            axis,
-            what,
-            program,
-            out,
-            report,
-            weights,
-            seed,
-            iters,
-            sets,
-        }) => {
-            count_flag("--iters", iters, 1, 100_000)?;
-            tune::run(tune::Args {
-                preset,
-                axis,
-                what,
-                program,
-                out,
-                report,
-                weights,
-                seed,
-                iters,
-                sets,
-            })
-        }
+        Some(cmd @ Command::Tune { .. }) => tune::run_cmd(cmd),
         Some(Command::DiagnoseEval {
             generator,
             cases,
@@ -607,7 +582,10 @@ pub fn load_with_sets(path: &str, sets: &[String]) -> Result<LoadedPreset> {
     Ok(lp)
 }
 
-pub(crate) fn program_texts(lp: &LoadedPreset, program: Option<&PathBuf>) -> Result<Vec<(String, String)>> {
+pub(crate) fn program_texts(
+    lp: &LoadedPreset,
+    program: Option<&PathBuf>,
+) -> Result<Vec<(String, String)>> {
     let mut texts = Vec::new();
     for (i, name) in lp.preset.scenario.programs.iter().enumerate() {
         match (program, i) {

@@ -508,8 +508,11 @@ impl CostFunction for Problem<'_> {
     type Output = f64;
 
     fn cost(&self, x: &Vec<f64>) -> Result<f64, argmin::core::Error> {
+        // Once cancelled, every point is infinitely bad and costs nothing: the solver (which
+        // does not expect an error while it sets up its simplex) winds down, and the tune
+        // reports the cancel.
         if self.shared.progress.cancel.load(Ordering::Relaxed) {
-            return Err(argmin::core::Error::msg("cancelled"));
+            return Ok(f64::INFINITY);
         }
         let mut p = self.preset_at(x);
         // The run's length is known from the start's run: one trace allocation, not a
@@ -519,10 +522,7 @@ impl CostFunction for Problem<'_> {
         let f = evaluate(&p, self.job.programs, &self.job.axis, &self.job.weights)
             .map_or(f64::INFINITY, |f| f.objective);
         // Outside the box: the box's value plus the distance, so the simplex comes back.
-        let out: f64 = x
-            .iter()
-            .map(|u| (u - u.clamp(0.0, 1.0)).abs())
-            .sum::<f64>();
+        let out: f64 = x.iter().map(|u| (u - u.clamp(0.0, 1.0)).abs()).sum::<f64>();
         let f = f + out * 100.0;
         let k = self.shared.evals.fetch_add(1, Ordering::Relaxed) + 1;
         if let Ok(mut b) = self.shared.best.lock()
@@ -557,7 +557,9 @@ fn run_start(prob: Problem<'_>, x0: Vec<f64>, step: f64, iters: u64) -> Option<(
         };
         simplex.push(v);
     }
-    let solver = NelderMead::new(simplex).with_sd_tolerance(SD_TOLERANCE).ok()?;
+    let solver = NelderMead::new(simplex)
+        .with_sd_tolerance(SD_TOLERANCE)
+        .ok()?;
     let res = Executor::new(prob, solver)
         .configure(|s| s.max_iters(iters))
         .run()
@@ -594,12 +596,7 @@ fn stage(
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(s) = starts.get(i) else { break };
-                    let dims = s
-                        .base
-                        .axes
-                        .get(axis_i)
-                        .map(dims_of)
-                        .unwrap_or_default();
+                    let dims = s.base.axes.get(axis_i).map(dims_of).unwrap_or_default();
                     let prob = Problem {
                         base: &s.base,
                         axis_i,
@@ -651,9 +648,9 @@ fn jitter(seed: u64, k: u64, n: usize) -> Vec<f64> {
     (0..n).map(|_| rng.r#gen::<f64>()).collect()
 }
 
-/// Tunes what `job` asks for and returns the outcome; the input preset is never changed.
-pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError> {
-    let t0 = std::time::Instant::now();
+/// The axis's index, once every compensation to tune is on and the preset has what it
+/// needs.
+fn check(job: &Job<'_>) -> Result<usize, TuneError> {
     let axis_i = job
         .preset
         .axes
@@ -688,6 +685,72 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
     if job.what.contains(&What::Cross) && !job.preset.crossbeam.enabled {
         return Err(TuneError::NoCrossbeam);
     }
+    Ok(axis_i)
+}
+
+/// The measured parts, then the backlash starts (every pair of output modes), then the
+/// quadrant starts (the values given and seeded points); each stage keeps its best only
+/// when it beats what came before. Returns the preset and its objective.
+fn search(
+    job: &Job<'_>,
+    shared: &Shared<'_>,
+    axis_i: usize,
+    start_f: f64,
+) -> Result<(Preset, f64), TuneError> {
+    let mut cur = job.preset.clone();
+    let mut cur_f = start_f;
+    // Measured parts first: they change the machine the searched parts act on.
+    if job.what.contains(&What::Thermal) {
+        cur = tune_thermal(&cur, job)?;
+        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+    }
+    if job.what.contains(&What::Cross) {
+        cur.cross = measure::sag_tables(&cur, 9)?;
+        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+    }
+    if job.what.contains(&What::Backlash) {
+        let mut starts = vec![];
+        for m1 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
+            for m2 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
+                let mut p = cur.clone();
+                p.axes[axis_i].backlash.plus_to_minus.mode = m1;
+                p.axes[axis_i].backlash.minus_to_plus.mode = m2;
+                starts.push(Start { base: p, x0: None });
+            }
+        }
+        if let Some((p, f)) = stage(job, shared, axis_i, starts, backlash_dims)?
+            && f < cur_f
+        {
+            cur = p;
+            cur_f = f;
+        }
+    }
+    if job.what.contains(&What::Quadrant) {
+        let mut p = cur.clone();
+        p.axes[axis_i].quadrant.adaptive = true;
+        let n = quadrant_dims(&p.axes[axis_i]).len();
+        let mut starts = vec![Start {
+            base: p.clone(),
+            x0: None,
+        }];
+        starts.extend((0..3).map(|k| Start {
+            base: p.clone(),
+            x0: Some(jitter(job.seed, k, n)),
+        }));
+        if let Some((p, f)) = stage(job, shared, axis_i, starts, quadrant_dims)?
+            && f < cur_f
+        {
+            cur = p;
+            cur_f = f;
+        }
+    }
+    Ok((cur, cur_f))
+}
+
+/// Tunes what `job` asks for and returns the outcome; the input preset is never changed.
+pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError> {
+    let t0 = std::time::Instant::now();
+    let axis_i = check(job)?;
     let before = evaluate(job.preset, job.programs, &job.axis, &job.weights)?;
     if before.reversals.is_empty()
         && job
@@ -710,60 +773,10 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
         best: Mutex::new((before.objective, vec![(1, before.objective)])),
         progress,
     };
-    let mut cur = job.preset.clone();
-    let mut cur_f = before.objective;
-    // Measured parts first: they change the machine the searched parts act on.
-    if job.what.contains(&What::Thermal) {
-        cur = tune_thermal(&cur, job)?;
-        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
-    }
-    if job.what.contains(&What::Cross) {
-        cur.cross = measure::sag_tables(&cur, 9)?;
-        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
-    }
-    if job.what.contains(&What::Backlash) {
-        let mut starts = vec![];
-        for m1 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
-            for m2 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
-                let mut p = cur.clone();
-                p.axes[axis_i].backlash.plus_to_minus.mode = m1;
-                p.axes[axis_i].backlash.minus_to_plus.mode = m2;
-                starts.push(Start { base: p, x0: None });
-            }
-        }
-        if let Some((p, f)) = stage(job, &shared, axis_i, starts, backlash_dims)?
-            && f < cur_f
-        {
-            cur = p;
-            cur_f = f;
-        }
-    }
-    if job.what.contains(&What::Quadrant) {
-        let mut p = cur.clone();
-        p.axes[axis_i].quadrant.adaptive = true;
-        let n = quadrant_dims(&p.axes[axis_i]).len();
-        let mut starts = vec![Start {
-            base: p.clone(),
-            x0: None,
-        }];
-        starts.extend((0..3).map(|k| Start {
-            base: p.clone(),
-            x0: Some(jitter(job.seed, k, n)),
-        }));
-        if let Some((p, f)) = stage(job, &shared, axis_i, starts, quadrant_dims)?
-            && f < cur_f
-        {
-            cur = p;
-            cur_f = f;
-        }
-    }
+    let (cur, cur_f) = search(job, &shared, axis_i, before.objective)?;
     // Never worse than the start: the comparison is on the same figures.
     let kept_start = cur_f >= before.objective;
-    let preset = if kept_start {
-        job.preset.clone()
-    } else {
-        cur
-    };
+    let preset = if kept_start { job.preset.clone() } else { cur };
     let after = evaluate(&preset, job.programs, &job.axis, &job.weights)?;
     let values = tuned_values(&preset, axis_i, job);
     let wall_s = t0.elapsed().as_secs_f64();
@@ -815,7 +828,10 @@ fn tuned_values(p: &Preset, axis_i: usize, job: &Job<'_>) -> Vec<(String, f64)> 
         .map(|d| (format!("axes.{}.{}", a.name, d.path), (d.get)(a)))
         .collect();
     if job.what.contains(&What::Thermal) {
-        out.push((format!("axes.{}.thermal.k_per_um", a.name), a.thermal.k_per_um));
+        out.push((
+            format!("axes.{}.thermal.k_per_um", a.name),
+            a.thermal.k_per_um,
+        ));
         out.push((format!("axes.{}.thermal.a", a.name), a.thermal.a));
     }
     out

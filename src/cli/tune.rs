@@ -23,6 +23,38 @@ pub struct Args {
     pub sets: Vec<String>,
 }
 
+/// `axisbench tune …` from its parsed command.
+pub fn run_cmd(cmd: super::Command) -> Result<()> {
+    let super::Command::Tune {
+        preset,
+        axis,
+        what,
+        program,
+        out,
+        report,
+        weights,
+        seed,
+        iters,
+        sets,
+    } = cmd
+    else {
+        anyhow::bail!("not a tune command");
+    };
+    super::count_flag("--iters", iters, 1, 100_000)?;
+    run(Args {
+        preset,
+        axis,
+        what,
+        program,
+        out,
+        report,
+        weights,
+        seed,
+        iters,
+        sets,
+    })
+}
+
 pub fn run(a: Args) -> Result<()> {
     let what = What::parse_list(&a.what)?;
     let weights = match &a.weights {
@@ -59,7 +91,10 @@ pub fn run(a: Args) -> Result<()> {
     };
     let cancel = AtomicBool::new(false);
     let report = |n: usize, f: f64| {
-        eprint!("\r  {n} simulations, best objective {}        ", fmt_qty(f, ""));
+        eprint!(
+            "\r  {n} simulations, best objective {}        ",
+            fmt_qty(f, "")
+        );
     };
     let out = tune::tune(
         &job,
@@ -80,7 +115,11 @@ pub fn run(a: Args) -> Result<()> {
             .map(|n| n.to_string_lossy().into_owned())
             .with_context(|| format!("--out {}: not a file name", path.display()))?;
         let mut files = vec![(name, out.preset.to_ron()?.into_bytes())];
-        files.extend(texts.iter().map(|(n, t)| (n.clone(), t.clone().into_bytes())));
+        files.extend(
+            texts
+                .iter()
+                .map(|(n, t)| (n.clone(), t.clone().into_bytes())),
+        );
         axisbench::fsutil::write_all_atomic(&dir, &files)
             .with_context(|| format!("writing the tuned preset {}", path.display()))?;
         say!("tuned preset: {} (with its programs)", path.display());
@@ -98,7 +137,11 @@ fn print_outcome(o: &tune::Outcome) {
     let w = &o.weights;
     say!(
         "tune of {} on axis {}: objective = {}·mean peak change + {}·mean |settled change| + {}·RMS error (µm)",
-        o.what.iter().map(|w| w.name()).collect::<Vec<_>>().join(", "),
+        o.what
+            .iter()
+            .map(|w| w.name())
+            .collect::<Vec<_>>()
+            .join(", "),
         o.axis,
         w.peak,
         w.settled,
@@ -117,7 +160,9 @@ fn print_outcome(o: &tune::Outcome) {
         o.wall_s,
         o.simulations_per_s
     );
-    say!("  reversal                 peak change before -> after     settled change before -> after");
+    say!(
+        "  reversal                 peak change before -> after     settled change before -> after"
+    );
     for (b, a) in o.before.reversals.iter().zip(&o.after.reversals) {
         say!(
             "  {} at t = {:>8.4} s   {:>10} -> {:<10}        {:>10} -> {:<10}",

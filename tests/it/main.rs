@@ -18,3 +18,4 @@ mod presets;
 mod self_replay;
 mod stability;
 mod trace_io;
+mod tune;
