@@ -12,6 +12,7 @@ mod scope;
 mod session;
 #[cfg(test)]
 mod tests;
+mod tune;
 
 use eframe::egui;
 use std::collections::BTreeMap;
@@ -48,6 +49,7 @@ pub enum Tab {
     Sag,
     Compare,
     Diagnose,
+    Tune,
 }
 
 /// An action that drops unsaved edits, waiting for the user's answer.
@@ -125,6 +127,8 @@ pub struct Workbench {
     pub scope: scope::ScopeView,
     /// Presets replaced by an Apply, newest last, each with what replaced it.
     pub undo: Vec<(String, Preset)>,
+    /// The Tune view.
+    pub tune: tune::TuneState,
     /// An action waiting for Save / Discard / Cancel.
     pub pending: Option<Pending>,
     /// The user agreed to close the window; the next frame closes it.
@@ -195,6 +199,7 @@ impl Workbench {
             diag: diagnose::DiagState::new(),
             scope: scope::ScopeView::default(),
             undo: vec![],
+            tune: tune::TuneState::default(),
             pending: None,
             close_now: false,
             quit_allowed: false,
@@ -342,6 +347,7 @@ impl Workbench {
         self.preset = old;
         self.preset_replaced();
         self.diag.applied = false;
+        self.tune.applied = false;
         self.status = format!("undone: {what}");
     }
 
@@ -667,6 +673,7 @@ impl Workbench {
                     (Tab::Sag, "Sag profile"),
                     (Tab::Compare, "A/B compare"),
                     (Tab::Diagnose, "Diagnose"),
+                    (Tab::Tune, "Tune"),
                 ] {
                     ui.selectable_value(&mut self.tab, tab, label);
                 }
@@ -678,6 +685,7 @@ impl Workbench {
                 Tab::Sag => plots::sag_ui(self, ui),
                 Tab::Compare => plots::compare_ui(self, ui),
                 Tab::Diagnose => diagnose::diagnose_ui(self, ui),
+                Tab::Tune => tune::tune_ui(self, ui),
             }
         });
         self.handle_screenshot(ui.ctx());

@@ -906,3 +906,66 @@ fn the_whole_run_history_is_bounded_and_keeps_the_extremes() {
         .fold(f64::NEG_INFINITY, f64::max);
     assert!(hi >= ring_hi - 1e-12, "the history keeps the largest value");
 }
+
+#[test]
+fn the_tune_panel_runs_applies_and_undoes() {
+    let mut h = harness(default_wb());
+    h.run();
+    h.get_by_label("Tune").click();
+    h.run();
+    assert_eq!(h.state().tab, Tab::Tune);
+    // default.ron has its quadrant compensation off: tune the backlash alone.
+    h.get_by_label("quadrant (M0, T0, A, B, C, D, P0)").click();
+    h.run();
+    let before = h.state().preset.clone();
+    h.get_by_label("Run tune").click();
+    h.step();
+    assert!(h.state().tune.job.is_some(), "the tune started");
+    h.state_mut().wait_tune();
+    h.run();
+    {
+        let wb = h.state();
+        assert!(wb.tune.error.is_none(), "{:?}", wb.tune.error);
+        let r = wb.tune.result.as_ref().expect("a result");
+        assert!(r.outcome.after.objective <= r.outcome.before.objective);
+        assert!(!r.err_um.is_empty(), "the error overlay has both runs");
+        assert_eq!(wb.preset, before, "nothing applied yet");
+    }
+    assert!(
+        h.query_by_label("peak change before").is_some(),
+        "the table"
+    );
+    h.get_by_label("Apply tuned values").click();
+    h.run();
+    {
+        let wb = h.state();
+        let tuned = &wb.tune.result.as_ref().expect("result").outcome.preset;
+        assert_eq!(&wb.preset, tuned, "the tuned values are in force");
+        assert_eq!(
+            wb.live.lock().machine.preset.axes[0].backlash.q_um,
+            tuned.axes[0].backlash.q_um,
+            "and the running machine has them"
+        );
+    }
+    h.get_by_label("Undo apply").click();
+    h.run();
+    assert_eq!(h.state().preset, before, "Undo restores the preset before");
+    // A cancelled tune changes nothing and says so.
+    h.get_by_label("Run tune").click();
+    h.step();
+    if let Some(j) = &h.state().tune.job {
+        j.cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+    h.state_mut().wait_tune();
+    h.run();
+    assert_eq!(h.state().preset, before);
+    let wb = h.state();
+    assert!(
+        wb.tune
+            .error
+            .as_deref()
+            .is_some_and(|e| e.contains("cancelled")),
+        "{:?}",
+        wb.tune.error
+    );
+}

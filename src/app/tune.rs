@@ -1,0 +1,410 @@
+//! The Tune view: the compensation searched on the simulated machine (`axisbench::tune`) on
+//! a worker thread, with progress and Cancel, the objective against the evaluation count,
+//! the before/after table per reversal, the error before and after overlaid, and Apply
+//! (one Undo away) onto the preset the tune ran on only.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+
+use eframe::egui;
+use egui_plot::{Legend, Line, Plot, PlotPoints};
+
+use axisbench::trace::AxisSignal;
+use axisbench::tune::{self, Job, Outcome, Progress, Weights, What};
+use axisbench::units::{fmt_num, fmt_qty, m_to_um, mm_to_um};
+use axisbench::{Machine, Preset};
+
+use super::Workbench;
+use super::diagnose::Basis;
+
+/// A finished tune, with the error of both runs for the overlay: (t s, before µm, after µm).
+pub struct TuneResult {
+    pub outcome: Outcome,
+    pub err_um: Vec<[f64; 3]>,
+}
+
+/// A tune on its worker thread.
+pub struct TuneJob {
+    /// (evaluations, best objective, history of improvements).
+    pub progress: Arc<Mutex<(usize, f64, Vec<(usize, f64)>)>>,
+    pub cancel: Arc<AtomicBool>,
+    pub result: Arc<Mutex<Option<Result<TuneResult, String>>>>,
+}
+
+pub struct TuneState {
+    pub backlash: bool,
+    pub quadrant: bool,
+    pub weights: Weights,
+    pub job: Option<TuneJob>,
+    job_basis: Option<Basis>,
+    pub result: Option<TuneResult>,
+    pub basis: Option<Basis>,
+    pub applied: bool,
+    pub error: Option<String>,
+}
+
+impl Default for TuneState {
+    fn default() -> Self {
+        TuneState {
+            backlash: true,
+            quadrant: true,
+            weights: Weights::default(),
+            job: None,
+            job_basis: None,
+            result: None,
+            basis: None,
+            applied: false,
+            error: None,
+        }
+    }
+}
+
+/// The error of one run on `axis`, µm, with its time stamps.
+fn err_series(p: &Preset, programs: &[(String, String)], axis: &str) -> (Vec<f64>, Vec<f64>) {
+    let Ok(mut m) = Machine::new(p, programs) else {
+        return (vec![], vec![]);
+    };
+    if m.run(4.0 * 3600.0).is_err() {
+        return (vec![], vec![]);
+    }
+    let t = m.trace.t().to_vec();
+    let e = m
+        .trace
+        .axis_values(axis, AxisSignal::Err)
+        .map(|v| v.iter().map(|x| m_to_um(*x)).collect())
+        .unwrap_or_default();
+    (t, e)
+}
+
+impl Workbench {
+    /// What the checkboxes ask for.
+    fn tune_what(&self) -> Vec<What> {
+        let mut w = vec![];
+        if self.tune.backlash {
+            w.push(What::Backlash);
+        }
+        if self.tune.quadrant {
+            w.push(What::Quadrant);
+        }
+        w
+    }
+
+    /// Starts a tune of the selected axis with the current preset and program.
+    pub fn start_tune(&mut self) {
+        let what = self.tune_what();
+        if what.is_empty() {
+            self.tune.error = Some("tick at least one of backlash, quadrant".into());
+            return;
+        }
+        let preset = self.preset.clone();
+        let programs = self.programs.clone();
+        let axis = self.axis_name();
+        let weights = self.tune.weights;
+        let job = TuneJob {
+            progress: Arc::new(Mutex::new((0, f64::NAN, vec![]))),
+            cancel: Arc::new(AtomicBool::new(false)),
+            result: Arc::new(Mutex::new(None)),
+        };
+        let (progress, cancel, result) =
+            (job.progress.clone(), job.cancel.clone(), job.result.clone());
+        self.tune.error = None;
+        std::thread::spawn(move || {
+            let report = |n: usize, f: f64| {
+                if let Ok(mut p) = progress.lock() {
+                    p.0 = n;
+                    p.1 = f;
+                    p.2.push((n, f));
+                }
+            };
+            let job = Job {
+                preset: &preset,
+                programs: &programs,
+                axis: axis.clone(),
+                what,
+                weights,
+                seed: 1,
+                max_iters: 80,
+                threads: 0,
+            };
+            let r = tune::tune(
+                &job,
+                &Progress {
+                    report: &report,
+                    cancel: &cancel,
+                },
+            )
+            .map(|outcome| {
+                let (t, before) = err_series(&preset, &programs, &axis);
+                let (_, after) = err_series(&outcome.preset, &programs, &axis);
+                let err_um = t
+                    .iter()
+                    .zip(before.iter().zip(&after))
+                    .map(|(t, (b, a))| [*t, *b, *a])
+                    .collect();
+                TuneResult { outcome, err_um }
+            })
+            .map_err(|e| e.to_string());
+            if let Ok(mut slot) = result.lock() {
+                *slot = Some(r);
+            }
+        });
+        self.tune.job = Some(job);
+        self.tune.job_basis = Some(Basis::of(self));
+    }
+
+    /// Takes a finished tune's result.
+    fn poll_tune(&mut self) {
+        let done = self
+            .tune
+            .job
+            .as_ref()
+            .and_then(|j| j.result.lock().ok().and_then(|mut r| r.take()));
+        if let Some(r) = done {
+            self.tune.job = None;
+            match r {
+                Ok(res) => {
+                    self.status = format!(
+                        "tune: objective {} -> {} in {} simulations",
+                        fmt_num(res.outcome.before.objective),
+                        fmt_num(res.outcome.after.objective),
+                        res.outcome.simulations
+                    );
+                    self.tune.result = Some(res);
+                    self.tune.basis = self.tune.job_basis.take();
+                    self.tune.applied = false;
+                }
+                Err(e) => self.tune.error = Some(e),
+            }
+        }
+    }
+
+    /// Waits for a running tune (tests).
+    #[cfg(test)]
+    pub fn wait_tune(&mut self) {
+        while self.tune.job.is_some() {
+            self.poll_tune();
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+    }
+
+    /// Why the tune on screen cannot be applied now; None when Apply may go ahead.
+    pub fn tune_not_applicable(&self) -> Option<String> {
+        let r = self.tune.result.as_ref()?;
+        if r.outcome.kept_start {
+            return Some("nothing beat the values in force: nothing to apply".into());
+        }
+        if self.tune.applied {
+            return Some("applied already (Undo restores the values before it)".into());
+        }
+        match &self.tune.basis {
+            Some(b) => b.stale(self),
+            None => Some("the result's preset is unknown: run it again to apply".into()),
+        }
+    }
+
+    /// Apply: the preset takes the tuned values; the previous preset is one Undo away.
+    pub fn apply_tune(&mut self) {
+        if let Some(why) = self.tune_not_applicable() {
+            self.status = format!("not applied: {why}");
+            return;
+        }
+        let Some(p) = self.tune.result.as_ref().map(|r| r.outcome.preset.clone()) else {
+            return;
+        };
+        let n = self.preset.diff(&p).len();
+        self.replace_preset(p, "tune".into());
+        self.tune.applied = true;
+        self.status = format!(
+            "tuned values applied, {n} fields changed (Undo restores them; save the preset to keep it)"
+        );
+    }
+}
+
+pub fn tune_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
+    wb.poll_tune();
+    ui.label(format!(
+        "Searches the compensation of axis {} on the simulated machine for the smallest error change at the program's reversals (as A/B compare and `simulate` report them). Never returns values worse than those in force.",
+        wb.axis_name()
+    ));
+    settings_ui(wb, ui);
+    run_row_ui(wb, ui);
+    if let Some(e) = &wb.tune.error {
+        ui.colored_label(egui::Color32::from_rgb(230, 80, 80), e);
+    }
+    if let Some(r) = &wb.tune.result {
+        result_ui(r, ui);
+    }
+}
+
+fn settings_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        ui.label("Tune:");
+        ui.checkbox(&mut wb.tune.backlash, "backlash (Q, modes, N, B, M)");
+        ui.checkbox(&mut wb.tune.quadrant, "quadrant (M0, T0, A, B, C, D, P0)");
+    });
+    ui.horizontal(|ui| {
+        ui.label("Objective weights per µm:");
+        for (label, v) in [
+            ("peak change", &mut wb.tune.weights.peak),
+            ("settled change", &mut wb.tune.weights.settled),
+            ("RMS error", &mut wb.tune.weights.rms),
+        ] {
+            let l = ui.label(label);
+            ui.add(egui::DragValue::new(v).range(0.0..=10.0).speed(0.05))
+                .labelled_by(l.id);
+        }
+    });
+}
+
+fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
+    ui.horizontal(|ui| {
+        if let Some(job) = &wb.tune.job {
+            let (n, f) = job
+                .progress
+                .lock()
+                .map(|p| (p.0, p.1))
+                .unwrap_or((0, f64::NAN));
+            ui.add(egui::Spinner::new());
+            ui.label(format!(
+                "{n} simulations, best objective {}",
+                if f.is_finite() {
+                    fmt_num(f)
+                } else {
+                    "—".into()
+                }
+            ));
+            if ui.button("Cancel tune").clicked() {
+                job.cancel.store(true, Ordering::Relaxed);
+            }
+            ui.ctx().request_repaint();
+        } else if ui.button("Run tune").clicked() {
+            wb.start_tune();
+        }
+        let why_not = wb.tune_not_applicable();
+        if ui
+            .add_enabled(
+                wb.tune.result.is_some() && why_not.is_none(),
+                egui::Button::new("Apply tuned values"),
+            )
+            .clicked()
+        {
+            wb.apply_tune();
+        }
+        if let Some((what, _)) = wb.undo.last() {
+            let what = what.clone();
+            if ui
+                .button("Undo apply")
+                .on_hover_text(format!("restore the preset before: {what}"))
+                .clicked()
+            {
+                wb.undo_apply();
+            }
+        }
+    });
+    if let (Some(_), Some(why)) = (&wb.tune.result, wb.tune_not_applicable()) {
+        ui.colored_label(
+            egui::Color32::from_rgb(230, 160, 60),
+            format!("Apply is off: {why}"),
+        );
+    }
+}
+
+fn result_ui(r: &TuneResult, ui: &mut egui::Ui) {
+    let o = &r.outcome;
+    ui.separator();
+    ui.strong(format!(
+        "objective {} -> {}{} · {} simulations in {} ({} per s)",
+        fmt_num(o.before.objective),
+        fmt_num(o.after.objective),
+        if o.kept_start {
+            " (nothing beat the values in force: kept)"
+        } else {
+            ""
+        },
+        o.simulations,
+        fmt_qty(o.wall_s, "s"),
+        fmt_num(o.simulations_per_s)
+    ));
+    ui.horizontal_top(|ui| {
+        egui::Grid::new("tune-reversals")
+            .striped(true)
+            .show(ui, |ui| {
+                for h in [
+                    "reversal",
+                    "t",
+                    "peak change before",
+                    "after",
+                    "settled change before",
+                    "after",
+                ] {
+                    ui.strong(h);
+                }
+                ui.end_row();
+                for (b, a) in o.before.reversals.iter().zip(&o.after.reversals) {
+                    ui.label(b.direction.arrow());
+                    ui.label(fmt_qty(b.t_s, "s"));
+                    ui.label(fmt_qty(mm_to_um(b.peak_err_mm), "um"));
+                    ui.label(fmt_qty(mm_to_um(a.peak_err_mm), "um"));
+                    ui.label(fmt_qty(mm_to_um(b.settled_err_mm), "um"));
+                    ui.label(fmt_qty(mm_to_um(a.settled_err_mm), "um"));
+                    ui.end_row();
+                }
+                ui.label("RMS error");
+                ui.label("");
+                ui.label(fmt_qty(o.before.rms_um, "um"));
+                ui.label(fmt_qty(o.after.rms_um, "um"));
+                ui.end_row();
+            });
+        egui::Grid::new("tune-values").striped(true).show(ui, |ui| {
+            ui.strong("tuned value");
+            ui.strong("");
+            ui.end_row();
+            for (k, v) in &o.values {
+                ui.label(k);
+                ui.label(axisbench::units::fmt_sig(*v, 6));
+                ui.end_row();
+            }
+        });
+    });
+    let h = (ui.available_height() * 0.5).max(120.0);
+    ui.horizontal(|ui| {
+        let w = ui.available_width() * 0.35;
+        Plot::new("tune-objective")
+            .height(h)
+            .width(w)
+            .x_axis_label("simulations")
+            .y_axis_label("objective")
+            .show(ui, |pu| {
+                let pts: Vec<[f64; 2]> = o.history.iter().map(|(n, f)| [*n as f64, *f]).collect();
+                pu.line(Line::new("best objective", PlotPoints::from(pts)));
+            });
+        let step = (r.err_um.len() / 4000).max(1);
+        Plot::new("tune-error")
+            .height(h)
+            .legend(Legend::default())
+            .x_axis_label("t [s]")
+            .y_axis_label("error cmd − pos [µm]")
+            .show(ui, |pu| {
+                let before: Vec<[f64; 2]> = r
+                    .err_um
+                    .iter()
+                    .step_by(step)
+                    .map(|p| [p[0], p[1]])
+                    .collect();
+                let after: Vec<[f64; 2]> = r
+                    .err_um
+                    .iter()
+                    .step_by(step)
+                    .map(|p| [p[0], p[2]])
+                    .collect();
+                pu.line(
+                    Line::new("before", PlotPoints::from(before))
+                        .color(egui::Color32::from_rgb(230, 80, 80)),
+                );
+                pu.line(
+                    Line::new("tuned", PlotPoints::from(after))
+                        .color(egui::Color32::from_rgb(0, 200, 210)),
+                );
+            });
+    });
+}
