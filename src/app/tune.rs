@@ -25,8 +25,8 @@ pub struct TuneResult {
 
 /// A tune on its worker thread.
 pub struct TuneJob {
-    /// (evaluations, best objective, history of improvements).
-    pub progress: Arc<Mutex<(usize, f64, Vec<(usize, f64)>)>>,
+    /// (evaluations, best objective so far).
+    pub progress: Arc<Mutex<(usize, f64)>>,
     pub cancel: Arc<AtomicBool>,
     pub result: Arc<Mutex<Option<Result<TuneResult, String>>>>,
 }
@@ -101,7 +101,7 @@ impl Workbench {
         let axis = self.axis_name();
         let weights = self.tune.weights;
         let job = TuneJob {
-            progress: Arc::new(Mutex::new((0, f64::NAN, vec![]))),
+            progress: Arc::new(Mutex::new((0, f64::NAN))),
             cancel: Arc::new(AtomicBool::new(false)),
             result: Arc::new(Mutex::new(None)),
         };
@@ -111,9 +111,7 @@ impl Workbench {
         std::thread::spawn(move || {
             let report = |n: usize, f: f64| {
                 if let Ok(mut p) = progress.lock() {
-                    p.0 = n;
-                    p.1 = f;
-                    p.2.push((n, f));
+                    *p = (n, f);
                 }
             };
             let job = Job {
@@ -259,11 +257,7 @@ fn settings_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
 fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if let Some(job) = &wb.tune.job {
-            let (n, f) = job
-                .progress
-                .lock()
-                .map(|p| (p.0, p.1))
-                .unwrap_or((0, f64::NAN));
+            let (n, f) = job.progress.lock().map(|p| *p).unwrap_or((0, f64::NAN));
             ui.add(egui::Spinner::new());
             ui.label(format!(
                 "{n} simulations, best objective {}",
