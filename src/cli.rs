@@ -267,6 +267,11 @@ pub enum Command {
         /// Override a preset field before tuning (repeatable), as for simulate.
         #[arg(long = "set", value_name = "PATH=VALUE")]
         sets: Vec<String>,
+        /// Instead of the search, the dense-grid check: N values per searched number over
+        /// the same stages (offline: N^dims simulations); prints the best objective and
+        /// the time.
+        #[arg(long, value_name = "N")]
+        grid: Option<usize>,
     },
     /// Blind check of the diagnosis: generated cases with hidden effects.
     DiagnoseEval {

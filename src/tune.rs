@@ -747,6 +747,172 @@ fn search(
     Ok((cur, cur_f))
 }
 
+/// The best point of a full grid over the same numbers a stage searches: `n` values per
+/// dimension (ends included) on every base; points shared out to the threads.
+fn grid_stage(
+    job: &Job<'_>,
+    shared: &Shared<'_>,
+    axis_i: usize,
+    bases: &[Preset],
+    dims_of: fn(&AxisParams) -> Vec<Dim>,
+    n: usize,
+) -> Option<(Preset, f64)> {
+    let n = n.max(2);
+    let dims: Vec<Vec<Dim>> = bases
+        .iter()
+        .map(|b| b.axes.get(axis_i).map(dims_of).unwrap_or_default())
+        .collect();
+    let counts: Vec<usize> = dims
+        .iter()
+        .map(|d| n.saturating_pow(d.len() as u32))
+        .collect();
+    let total: usize = counts.iter().sum();
+    let threads = if job.threads == 0 {
+        std::thread::available_parallelism().map_or(2, |n| n.get())
+    } else {
+        job.threads
+    };
+    let next = AtomicUsize::new(0);
+    let best: Mutex<Option<(usize, f64)>> = Mutex::new(None);
+    let locate = |mut i: usize| -> Option<(usize, usize)> {
+        for (b, c) in counts.iter().enumerate() {
+            if i < *c {
+                return Some((b, i));
+            }
+            i -= c;
+        }
+        None
+    };
+    let point = |mut j: usize, d: usize| -> Vec<f64> {
+        (0..d)
+            .map(|_| {
+                let u = (j % n) as f64 / (n - 1) as f64;
+                j /= n;
+                u
+            })
+            .collect()
+    };
+    std::thread::scope(|sc| {
+        for _ in 0..threads.max(1) {
+            sc.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    if i >= total {
+                        break;
+                    }
+                    let Some((b, j)) = locate(i) else { break };
+                    let prob = Problem {
+                        base: &bases[b],
+                        axis_i,
+                        dims: &dims[b],
+                        job,
+                        shared,
+                    };
+                    let Ok(f) = prob.cost(&point(j, dims[b].len())) else {
+                        continue;
+                    };
+                    if let Ok(mut g) = best.lock() {
+                        // Ties go to the lower index: the same grid gives the same answer.
+                        let better = match *g {
+                            Some((gi, gf)) => f < gf || (f == gf && i < gi),
+                            None => true,
+                        };
+                        if better {
+                            *g = Some((i, f));
+                        }
+                    }
+                }
+            });
+        }
+    });
+    let (i, f) = best.into_inner().ok().flatten()?;
+    let (b, j) = locate(i)?;
+    let prob = Problem {
+        base: &bases[b],
+        axis_i,
+        dims: &dims[b],
+        job,
+        shared,
+    };
+    Some((prob.preset_at(&point(j, dims[b].len())), f))
+}
+
+/// What a grid check found: the best objective, the grid's size and its time.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct GridOutcome {
+    /// The objective at the start.
+    pub start: f64,
+    /// The best objective on the grid (the start's when no grid point beat it).
+    pub best: f64,
+    /// Values per dimension.
+    pub per_dim: usize,
+    /// Simulations run.
+    pub simulations: usize,
+    /// Wall time, s.
+    pub wall_s: f64,
+}
+
+/// The dense-grid check of the search: the same stages as [`tune`] (backlash over every
+/// pair of output modes, then the quadrant on the best backlash), each a full grid of
+/// `per_dim` values per searched number instead of Nelder–Mead.
+pub fn grid(
+    job: &Job<'_>,
+    per_dim: usize,
+    progress: &Progress<'_>,
+) -> Result<GridOutcome, TuneError> {
+    let t0 = std::time::Instant::now();
+    let axis_i = check(job)?;
+    let before = evaluate(job.preset, job.programs, &job.axis, &job.weights)?;
+    let shared = Shared {
+        run_s: job
+            .preset
+            .scenario
+            .duration_s
+            .or_else(|| last_t(job.preset, job.programs)),
+        evals: AtomicUsize::new(1),
+        best: Mutex::new((before.objective, vec![])),
+        progress,
+    };
+    let mut cur = job.preset.clone();
+    let mut cur_f = before.objective;
+    if job.what.contains(&What::Backlash) {
+        let mut bases = vec![];
+        for m1 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
+            for m2 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
+                let mut p = cur.clone();
+                p.axes[axis_i].backlash.plus_to_minus.mode = m1;
+                p.axes[axis_i].backlash.minus_to_plus.mode = m2;
+                bases.push(p);
+            }
+        }
+        if let Some((p, f)) = grid_stage(job, &shared, axis_i, &bases, backlash_dims, per_dim)
+            && f < cur_f
+        {
+            cur = p;
+            cur_f = f;
+        }
+    }
+    if job.what.contains(&What::Quadrant) {
+        let mut p = cur.clone();
+        p.axes[axis_i].quadrant.adaptive = true;
+        if let Some((_, f)) = grid_stage(job, &shared, axis_i, &[p], quadrant_dims, per_dim)
+            && f < cur_f
+        {
+            cur_f = f;
+        }
+    }
+    if progress.cancel.load(Ordering::Relaxed) {
+        return Err(TuneError::Cancelled);
+    }
+    Ok(GridOutcome {
+        start: before.objective,
+        best: cur_f,
+        per_dim,
+        simulations: shared.evals.load(Ordering::Relaxed),
+        wall_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
 /// Tunes what `job` asks for and returns the outcome; the input preset is never changed.
 pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError> {
     let t0 = std::time::Instant::now();

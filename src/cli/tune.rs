@@ -21,6 +21,7 @@ pub struct Args {
     pub seed: u64,
     pub iters: u64,
     pub sets: Vec<String>,
+    pub grid: Option<usize>,
 }
 
 /// `axisbench tune …` from its parsed command.
@@ -36,12 +37,17 @@ pub fn run_cmd(cmd: super::Command) -> Result<()> {
         seed,
         iters,
         sets,
+        grid,
     } = cmd
     else {
         anyhow::bail!("not a tune command");
     };
     super::count_flag("--iters", iters, 1, 100_000)?;
+    if let Some(n) = grid {
+        super::count_flag("--grid", n as u64, 2, 64)?;
+    }
     run(Args {
+        grid,
         preset,
         axis,
         what,
@@ -96,6 +102,25 @@ pub fn run(a: Args) -> Result<()> {
             fmt_qty(f, "")
         );
     };
+    if let Some(n) = a.grid {
+        let g = tune::grid(
+            &job,
+            n,
+            &Progress {
+                report: &report,
+                cancel: &cancel,
+            },
+        )?;
+        eprintln!();
+        say!(
+            "grid of {n} values per searched number: objective {} -> best {} ({} simulations, {:.1} s)",
+            fmt_qty(g.start, ""),
+            fmt_qty(g.best, ""),
+            g.simulations,
+            g.wall_s
+        );
+        return Ok(());
+    }
     let out = tune::tune(
         &job,
         &Progress {

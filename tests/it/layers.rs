@@ -28,6 +28,7 @@ const LAYERS: &[(&str, u32)] = &[
     ("export", 9),
     ("indep", 9),
     ("evaluation", 10),
+    ("tune", 10),
 ];
 
 /// Macros exported at the crate root, and the module that defines them.
