@@ -44,7 +44,7 @@ mod tune;
 pub struct UsageError(pub String);
 
 /// `value` of flag `name` if it is finite and within `lo ..= hi`.
-fn flag(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64> {
+pub(crate) fn flag(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64> {
     if value.is_finite() && (lo..=hi).contains(&value) {
         Ok(value)
     } else {
@@ -273,6 +273,23 @@ pub enum Command {
         #[arg(long, value_name = "N")]
         grid: Option<usize>,
     },
+    /// Transfer check of the tune: independent machines (src/indep) with hidden effects are
+    /// diagnosed, the compensation tuned on the fitted model and run on the machine; prints
+    /// the reversal glitch on the machine before and after next to the model's prediction.
+    TuneTransfer {
+        /// First seed; one case per seed from it.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Cases.
+        #[arg(long, default_value_t = 3)]
+        cases: u64,
+        /// Hidden effects of each case, comma-separated (names of `gen-cases`).
+        #[arg(long, default_value = "backlash,coulomb_friction")]
+        effects: String,
+        /// Seconds of motion per case.
+        #[arg(long, default_value_t = 24.0)]
+        duration: f64,
+    },
     /// Blind check of the diagnosis: generated cases with hidden effects.
     DiagnoseEval {
         /// Which generator makes the records: `independent` (a second simulator sharing no
@@ -460,6 +477,7 @@ pub fn run(cli: Cli) -> Result<()> {
             })
         }
         Some(cmd @ Command::Tune { .. }) => tune::run_cmd(cmd),
+        Some(cmd @ Command::TuneTransfer { .. }) => tune::transfer_run(cmd),
         Some(Command::DiagnoseEval {
             generator,
             cases,

@@ -17,6 +17,7 @@ use argmin::core::{CostFunction, Executor, State};
 use argmin::solver::neldermead::NelderMead;
 
 use crate::analysis::{self, Reversal};
+use crate::indep::run::Correction;
 use crate::machine::{Machine, MachineError};
 use crate::measure;
 use crate::preset::comp::{Injection, OutputMode};
@@ -119,6 +120,15 @@ pub enum TuneError {
     /// The simulated machine refused the preset or diverged.
     #[error(transparent)]
     Machine(#[from] MachineError),
+    /// A shipped preset could not be read (a build defect).
+    #[error(transparent)]
+    Preset(#[from] crate::preset::PresetError),
+}
+
+impl TuneError {
+    fn from_preset(e: crate::preset::PresetError) -> TuneError {
+        TuneError::Preset(e)
+    }
 }
 
 /// The objective's weights, per µm of each figure.
@@ -1001,4 +1011,244 @@ fn tuned_values(p: &Preset, axis_i: usize, job: &Job<'_>) -> Vec<(String, f64)> 
         out.push((format!("axes.{}.thermal.a", a.name), a.thermal.a));
     }
     out
+}
+
+/// The position and force corrections the backlash and quadrant compensations of `p`'s
+/// axis compute from a command sampled every `t3_s` (handed over every T3, as in the NC's
+/// direct mode), fed back their own command: what a controller with these settings adds on
+/// any machine. Per sample: position (m, the backlash output plus a position-injected
+/// quadrant pulse) and force (N, a torque-injected pulse through the screw). A
+/// velocity-injected pulse has no input on a rig that takes position and force; it is left
+/// out (the tune then should not use it).
+pub fn corrections(p: &Preset, axis: &str, cmd_m: &[f64], t3_s: f64) -> Correction {
+    use crate::comp::backlash::Backlash;
+    use crate::comp::quadrant::Quadrant;
+    use crate::comp::{PosCompCtx, PositionComp, ServoComp, ServoCompCtx, ServoCompOut};
+    let mut out = Correction::default();
+    let Some(i) = p.axes.iter().position(|a| a.name == axis) else {
+        return out;
+    };
+    let a = &p.axes[i];
+    let n_axes = p.axes.len();
+    let mut bl = a
+        .backlash
+        .enabled
+        .then(|| Backlash::new(i, axis, a.backlash.clone()));
+    let mut qd = a
+        .quadrant
+        .enabled
+        .then(|| Quadrant::new(i, axis, a.quadrant.clone()));
+    let f_per_t = a.drive.force_per_torque();
+    let mut cmds = vec![0.0; n_axes];
+    let mut prev = vec![0.0; n_axes];
+    let temps = vec![20.0; n_axes];
+    let mut prev_comp = cmd_m.first().copied().unwrap_or(0.0);
+    for (k, &c) in cmd_m.iter().enumerate() {
+        let t_s = k as f64 * t3_s;
+        cmds[i] = c;
+        prev[i] = if k == 0 { c } else { cmd_m[k - 1] };
+        let mut pos = vec![0.0; n_axes];
+        if let Some(b) = bl.as_mut() {
+            b.step(
+                &PosCompCtx {
+                    t_s,
+                    period_s: t3_s,
+                    cmd_m: &cmds,
+                    prev_cmd_m: &prev,
+                    fb_m: &cmds,
+                    temps_c: &temps,
+                },
+                &mut pos,
+            );
+        }
+        let comp = c + pos[i];
+        let mut s = ServoCompOut::default();
+        if let Some(q) = qd.as_mut() {
+            q.step(
+                &ServoCompCtx {
+                    t_s,
+                    t3_s,
+                    cmd_m: comp,
+                    prev_cmd_m: prev_comp,
+                    fb_m: c,
+                },
+                &mut s,
+            );
+        }
+        prev_comp = comp;
+        out.pos_m.push(pos[i] + s.pos_m);
+        out.force_n.push(s.torque_nm * f_per_t);
+    }
+    out
+}
+
+/// The mean peak error change at the reversals of a record, µm (the glitch).
+fn mean_peak_um(tr: &crate::trace::Trace, axis: &str) -> f64 {
+    let sums = analysis::summarize(tr);
+    let Some(s) = sums.iter().find(|s| s.axis == axis) else {
+        return f64::NAN;
+    };
+    let n = s.reversals.len().max(1) as f64;
+    s.reversals
+        .iter()
+        .map(|r| mm_to_um(r.peak_err_mm))
+        .sum::<f64>()
+        / n
+}
+
+/// A tune on a diagnosed model, run on the machine the record came from.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Transfer {
+    /// The effects the diagnosis named.
+    pub named: Vec<String>,
+    /// Mean peak error change at the independent machine's reversals without and with the
+    /// tuned compensation, µm.
+    pub machine_before_um: f64,
+    /// … with it.
+    pub machine_after_um: f64,
+    /// What the model predicted on its tuning program, µm: without …
+    pub model_before_um: f64,
+    /// … and with the tuned compensation.
+    pub model_after_um: f64,
+    /// The tuned values.
+    pub values: Vec<(String, f64)>,
+}
+
+impl Transfer {
+    /// The machine's cut as a share of the model's predicted cut (1: as predicted).
+    pub fn share_of_predicted(&self) -> f64 {
+        let predicted = self.model_before_um - self.model_after_um;
+        if predicted > 0.0 {
+            (self.machine_before_um - self.machine_after_um) / predicted
+        } else {
+            f64::NAN
+        }
+    }
+}
+
+/// Why a transfer check could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum TransferError {
+    /// The independent machine failed.
+    #[error(transparent)]
+    Indep(#[from] crate::indep::IndepError),
+    /// The diagnosis failed.
+    #[error(transparent)]
+    Diagnose(#[from] crate::diagnose::DiagnoseError),
+    /// The tune failed.
+    #[error(transparent)]
+    Tune(#[from] TuneError),
+    /// The diagnosis gave no model.
+    #[error("the diagnosis returned no fitted preset")]
+    NoModel,
+}
+
+/// The transfer check: an independent machine's record is diagnosed, the backlash and
+/// quadrant compensation tuned on the fitted model (from zero: Q = 0, M0 = 0, as an operator
+/// starts), the corrections those settings compute from the record's command fed into the
+/// same independent machine, and the reversal glitch compared with what the model predicted.
+pub fn transfer(
+    spec: &crate::indep::CaseSpec,
+    weights: Weights,
+    seed: u64,
+    max_iters: u64,
+) -> Result<Transfer, TransferError> {
+    use crate::diagnose::{self, replay::Record};
+    let case = crate::indep::generate(spec)?;
+    let axis = case
+        .preset
+        .axes
+        .first()
+        .map_or("x".to_owned(), |a| a.name.clone());
+    let rec = Record::for_preset(&case.trace, &case.name, &case.preset, &axis)?;
+    let cancel = AtomicBool::new(false);
+    let report = diagnose::diagnose(
+        &case.preset,
+        &rec,
+        None,
+        &diagnose::Options::default(),
+        &diagnose::Progress {
+            report: &|_, _| {},
+            cancel: &cancel,
+        },
+    )?;
+    let mut model = report.fitted.clone().ok_or(TransferError::NoModel)?;
+    // The calibration may put the nominal's marginal loop over the edge of the discrete
+    // stability check (its mass and gain factors, a few per cent, describe the record's
+    // response): the compensation is then tuned with the nominal's drive and controller,
+    // keeping the named effects.
+    if !crate::machine::check(&model).is_empty()
+        && let (Some(a), Some(n)) = (
+            model.axes.iter_mut().find(|a| a.name == axis),
+            case.preset.axes.iter().find(|a| a.name == axis),
+        )
+    {
+        a.servo = n.servo.clone();
+        a.drive = n.drive.clone();
+    }
+    // A play the diagnosis named lets the motor run alone across the gap, a loop the
+    // record's 1 ms amplifier period may not hold in the discrete model: the model then
+    // runs its amplifier faster (the settings tuned are in µm, N·m and ms, not in samples).
+    for _ in 0..3 {
+        if crate::machine::check(&model).is_empty() {
+            break;
+        }
+        model.timing.t3_s /= 4.0;
+    }
+    if let Some(a) = model.axes.iter_mut().find(|a| a.name == axis) {
+        a.backlash.enabled = true;
+        a.backlash.q_um = 0.0;
+        a.quadrant.enabled = true;
+        a.quadrant.inject = Injection::Torque;
+        a.quadrant.m0_torque_nm = 0.0;
+    }
+    let lp = crate::preset::load_embedded("emps.ron").map_err(TuneError::from_preset)?;
+    let programs: Vec<(String, String)> = lp
+        .preset
+        .scenario
+        .programs
+        .iter()
+        .filter_map(|p| Some((p.clone(), lp.program_text(p).ok()?)))
+        .collect();
+    model.scenario = lp.preset.scenario.clone();
+    let job = Job {
+        preset: &model,
+        programs: &programs,
+        axis: axis.clone(),
+        what: vec![What::Backlash, What::Quadrant],
+        weights,
+        seed,
+        max_iters,
+        threads: 0,
+    };
+    let outcome = tune(
+        &job,
+        &Progress {
+            report: &|_, _| {},
+            cancel: &cancel,
+        },
+    )?;
+    let mean = |f: &Figures| {
+        let n = f.reversals.len().max(1) as f64;
+        f.reversals
+            .iter()
+            .map(|r| mm_to_um(r.peak_err_mm))
+            .sum::<f64>()
+            / n
+    };
+    let cmd = case
+        .trace
+        .axis_values(&axis, crate::trace::AxisSignal::Cmd)
+        .map(<[f64]>::to_vec)
+        .unwrap_or_default();
+    let corr = corrections(&outcome.preset, &axis, &cmd, case.preset.timing.t3_s);
+    let corrected = crate::indep::generate_corrected(spec, Some(&corr))?;
+    Ok(Transfer {
+        named: report.selected.clone(),
+        machine_before_um: mean_peak_um(&case.trace, &axis),
+        machine_after_um: mean_peak_um(&corrected.trace, &axis),
+        model_before_um: mean(&outcome.before),
+        model_after_um: mean(&outcome.after),
+        values: outcome.values.clone(),
+    })
 }

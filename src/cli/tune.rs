@@ -209,3 +209,60 @@ fn print_outcome(o: &tune::Outcome) {
         say!("    {k} = {}", axisbench::units::fmt_sig(*v, 6));
     }
 }
+
+/// `axisbench tune-transfer …` from its parsed command.
+pub fn transfer_run(cmd: super::Command) -> Result<()> {
+    let super::Command::TuneTransfer {
+        seed,
+        cases,
+        effects,
+        duration,
+    } = cmd
+    else {
+        anyhow::bail!("not a tune-transfer command");
+    };
+    super::count_flag("--cases", cases, 1, 100)?;
+    super::flag("--duration", duration, 5.0, 600.0, "s")?;
+    transfer_cmd(seed, cases, &effects, duration)
+}
+
+/// `axisbench tune-transfer`: one line per case, then the share of the predicted cut the
+/// machines got.
+pub fn transfer_cmd(seed: u64, cases: u64, effects: &str, duration_s: f64) -> Result<()> {
+    use axisbench::indep::{CaseSpec, EffectPick};
+    let picks: Vec<EffectPick> = effects
+        .split(',')
+        .map(str::trim)
+        .filter(|e| !e.is_empty())
+        .map(|e| {
+            EffectPick::new(e, None).with_context(|| format!("--effects: unknown effect '{e}'"))
+        })
+        .collect::<Result<_>>()?;
+    say!(
+        "case  named by the diagnosis             machine glitch before -> after   model predicted before -> after   share of the predicted cut"
+    );
+    let mut shares = vec![];
+    for k in 0..cases {
+        let mut spec = CaseSpec::new(&format!("transfer_{k}"), seed + k, picks.clone());
+        spec.duration_s = Some(duration_s);
+        let t = tune::transfer(&spec, Weights::default(), 1, 80)?;
+        let share = t.share_of_predicted();
+        shares.push(share);
+        say!(
+            "{:>4}  {:<34} {:>9} -> {:<9}          {:>9} -> {:<9}          {}",
+            seed + k,
+            t.named.join(" + "),
+            fmt_qty(t.machine_before_um, "um"),
+            fmt_qty(t.machine_after_um, "um"),
+            fmt_qty(t.model_before_um, "um"),
+            fmt_qty(t.model_after_um, "um"),
+            axisbench::units::fmt_num(share)
+        );
+    }
+    let ok = shares.iter().filter(|s| **s >= 0.5).count();
+    say!(
+        "{ok} of {} machines got at least half of the predicted cut",
+        shares.len()
+    );
+    Ok(())
+}

@@ -426,6 +426,16 @@ fn auto_substeps(rate_per_s: f64, t3_s: f64) -> u32 {
 /// Generates one case. Deterministic in `spec.seed`: the same spec gives a bit-identical
 /// trace.
 pub fn generate(spec: &CaseSpec) -> Result<Case, IndepError> {
+    generate_corrected(spec, None)
+}
+
+/// [`generate`] with a compensation fed into the true machine: the same machine, command
+/// and noise as the uncorrected case of the same spec, so the two records differ by what
+/// the correction does. `corr` is per row of the record.
+pub fn generate_corrected(
+    spec: &CaseSpec,
+    corr: Option<&run::Correction>,
+) -> Result<Case, IndepError> {
     check(spec)?;
     let preset = nominal::nominal_preset(spec.pos_sensor)?;
     let mut m = nominal::exact_machine(&preset, spec.pos_sensor)?;
@@ -472,7 +482,7 @@ pub fn generate(spec: &CaseSpec) -> Result<Case, IndepError> {
         seed: spec.seed,
     };
     let rows = (duration_s / m.gains.t3_s).round() as usize;
-    let signals = run::run(&m, &profile, rows, &log)?;
+    let signals = run::run(&m, &profile, rows, &log, corr)?;
     for e in &mut effects {
         if e.name == "thermal_growth" {
             e.params

@@ -81,6 +81,18 @@ pub struct RunOut {
     pub heat_gain: f64,
 }
 
+/// A compensation fed into the true machine from outside, per row (period k): a position
+/// added to the set-point and a force added to the controller's output. The rig stays its
+/// own: what it gets is the corrections a controller's compensation computes from the
+/// command, nothing of the model's physics.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Correction {
+    /// Added to the set-point, m.
+    pub pos_m: Vec<f64>,
+    /// Added to the force command, N.
+    pub force_n: Vec<f64>,
+}
+
 /// Per-row samples gathered during the run.
 struct Raw {
     reading_m: Vec<f64>,
@@ -129,6 +141,7 @@ fn simulate(
     profile: &Profile,
     rows: usize,
     log: &Logging,
+    corr: Option<&Correction>,
 ) -> Result<Raw, IndepError> {
     let t3 = m.gains.t3_s;
     let n_sub = m.substeps.max(1);
@@ -162,8 +175,9 @@ fn simulate(
         let t = k as f64 * t3;
         let b = rig.bodies();
         let reading = read(b.motor_m, &mut noise);
-        let set = set_point(m.setpoint, profile, k, t3, &mut lagged);
-        let f = ctrl.update(set, reading);
+        let add = |v: Option<&Vec<f64>>| v.and_then(|v| v.get(k)).copied().unwrap_or(0.0);
+        let set = set_point(m.setpoint, profile, k, t3, &mut lagged) + add(corr.map(|c| &c.pos_m));
+        let f = ctrl.update(set, reading) + add(corr.map(|c| &c.force_n));
         rig.command(f);
         raw.reading_m.push(reading);
         raw.force_n.push(f);
@@ -198,14 +212,16 @@ fn simulate(
     Ok(raw)
 }
 
-/// Runs the machine on `profile` for `rows` samples and logs it.
+/// Runs the machine on `profile` for `rows` samples, with `corr` fed in when given, and
+/// logs it.
 pub fn run(
     m: &TrueMachine,
     profile: &Profile,
     rows: usize,
     log: &Logging,
+    corr: Option<&Correction>,
 ) -> Result<RunOut, IndepError> {
-    let raw = simulate(m, profile, rows, log)?;
+    let raw = simulate(m, profile, rows, log, corr)?;
     let t3 = m.gains.t3_s;
     let heat_gain = match m.thermal {
         Some(th) => {

@@ -268,7 +268,7 @@ fn clean_ramp_following_error_is_v_over_kp_plus_viscous_share() {
         skew: None,
         seed: 1,
     };
-    let out = run(&m, &profile, 2500, &log).expect("runs");
+    let out = run(&m, &profile, 2500, &log, None).expect("runs");
     let (kp, kv, c) = (
         m.gains.kp_per_s,
         m.gains.kv_n_s_per_m,
