@@ -443,11 +443,7 @@ pub fn evaluate(
     let s = sums.into_iter().find(|s| s.axis == axis);
     let (reversals, rms_um) = s.map_or((vec![], 0.0), |s| (s.reversals, mm_to_um(s.rms_err_mm)));
     let n = reversals.len().max(1) as f64;
-    let peak: f64 = reversals
-        .iter()
-        .map(|r| mm_to_um(r.peak_err_mm))
-        .sum::<f64>()
-        / n;
+    let peak = mean_peak_change_um(&reversals);
     let settled: f64 = reversals
         .iter()
         .map(|r| mm_to_um(r.settled_err_mm).abs())
@@ -1082,18 +1078,23 @@ pub fn corrections(p: &Preset, axis: &str, cmd_m: &[f64], t3_s: f64) -> Correcti
     out
 }
 
-/// The mean peak error change at the reversals of a record, µm (the glitch).
-fn mean_peak_um(tr: &crate::trace::Trace, axis: &str) -> f64 {
-    let sums = analysis::summarize(tr);
-    let Some(s) = sums.iter().find(|s| s.axis == axis) else {
-        return f64::NAN;
-    };
-    let n = s.reversals.len().max(1) as f64;
-    s.reversals
+/// The mean peak error change over `reversals`, µm: the reversal glitch the objective and
+/// the transfer check read (0 without reversals).
+pub fn mean_peak_change_um(reversals: &[Reversal]) -> f64 {
+    let n = reversals.len().max(1) as f64;
+    reversals
         .iter()
         .map(|r| mm_to_um(r.peak_err_mm))
         .sum::<f64>()
         / n
+}
+
+/// The mean peak error change at the reversals of a record, µm (the glitch).
+fn mean_peak_um(tr: &crate::trace::Trace, axis: &str) -> f64 {
+    analysis::summarize(tr)
+        .iter()
+        .find(|s| s.axis == axis)
+        .map_or(f64::NAN, |s| mean_peak_change_um(&s.reversals))
 }
 
 /// A tune on a diagnosed model, run on the machine the record came from.
@@ -1228,14 +1229,6 @@ pub fn transfer(
             cancel: &cancel,
         },
     )?;
-    let mean = |f: &Figures| {
-        let n = f.reversals.len().max(1) as f64;
-        f.reversals
-            .iter()
-            .map(|r| mm_to_um(r.peak_err_mm))
-            .sum::<f64>()
-            / n
-    };
     let cmd = case
         .trace
         .axis_values(&axis, crate::trace::AxisSignal::Cmd)
@@ -1247,8 +1240,8 @@ pub fn transfer(
         named: report.selected.clone(),
         machine_before_um: mean_peak_um(&case.trace, &axis),
         machine_after_um: mean_peak_um(&corrected.trace, &axis),
-        model_before_um: mean(&outcome.before),
-        model_after_um: mean(&outcome.after),
+        model_before_um: mean_peak_change_um(&outcome.before.reversals),
+        model_after_um: mean_peak_change_um(&outcome.after.reversals),
         values: outcome.values.clone(),
     })
 }
