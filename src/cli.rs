@@ -135,7 +135,7 @@ pub enum Command {
         #[command(subcommand)]
         what: MeasureCmd,
     },
-    /// Thermal correction calibration (seed 002) on simulated measurements.
+    /// Thermal correction calibration (thermal patent, SPEC §4) on simulated measurements.
     Calibrate {
         #[command(subcommand)]
         step: CalibrateCmd,

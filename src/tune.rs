@@ -1,7 +1,7 @@
-//! Auto-tune of the compensation on the simulated machine: backlash (seed 000) and quadrant
-//! (seed 003) parameters searched by Nelder–Mead (argmin) against the reversal figures
-//! `simulate` reports, from several starts run side by side; thermal (seed 002) and cross
-//! tables (seed 004) through their existing measurements.
+//! Auto-tune of the compensation on the simulated machine: backlash (backlash patent, SPEC §2) and quadrant
+//! (quadrant patent, SPEC §5) parameters searched by Nelder–Mead (argmin) against the reversal figures
+//! `simulate` reports, from several starts run side by side; thermal (thermal patent, SPEC §4) and cross
+//! tables (cross-table patent, SPEC §6) through their existing measurements.
 //!
 //! The objective is what a service engineer reads off a reversal test: per reversal, the
 //! peak and the settled change of the error (cmd − pos) from its value in the old
@@ -28,13 +28,13 @@ use crate::units::mm_to_um;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum What {
-    /// Q, and each direction's output mode with its N and B, or M (seed 000).
+    /// Q, and each direction's output mode with its N and B, or M (backlash patent, SPEC §2).
     Backlash,
-    /// M0, T0, A, B, C, D and P0 with the adaptive part on (seed 003).
+    /// M0, T0, A, B, C, D and P0 with the adaptive part on (quadrant patent, SPEC §5).
     Quadrant,
-    /// k and a through Step 1 and Step 2 (seed 002).
+    /// k and a through Step 1 and Step 2 (thermal patent, SPEC §4).
     Thermal,
-    /// The cross (sag) tables through their measurement (seed 004).
+    /// The cross (sag) tables through their measurement (cross-table patent, SPEC §6).
     Cross,
 }
 
@@ -970,7 +970,7 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
     })
 }
 
-/// Step 1 (k) and Step 2 (a) of seed 002 on the simulated machine, as the workbench runs
+/// Step 1 (k) and Step 2 (a) of the thermal patent (SPEC §4) on the simulated machine, as the workbench runs
 /// them: a two-hour warm-up program's measurements.
 fn tune_thermal(p: &Preset, job: &Job<'_>) -> Result<Preset, TuneError> {
     let step1 = measure::thermal_step1(p, &job.axis, &[job.programs.to_vec()], 120.0)?;

@@ -453,7 +453,10 @@ fn thermal_live_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
 fn calibration_ui(wb: &mut Workbench, ui: &mut egui::Ui, name: &str) {
     let i = wb.axis_sel;
     let path = format!("axes.{name}.thermal");
-    ui.label(egui::RichText::new("Calibration (seed 002), on the simulated machine").strong());
+    ui.label(
+        egui::RichText::new("Calibration (thermal patent, SPEC §4), on the simulated machine")
+            .strong(),
+    );
     ui.horizontal(|ui| {
         let l = ui.label("Step 1 interval");
         ui.add(

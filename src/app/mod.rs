@@ -932,7 +932,7 @@ impl Workbench {
         });
     }
 
-    /// The NC's initial processing mode and the PLC's mode-switch requests (seed 001).
+    /// The NC's initial processing mode and the PLC's mode-switch requests (processing-mode patent, SPEC §3).
     fn modes_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             ui.label("Initial mode:");

@@ -1,4 +1,4 @@
-//! Cross (sag) compensation tables (seed 004).
+//! Cross (sag) compensation tables (cross-table patent, SPEC §6).
 //!
 //! Each table maps the position x_s of a base axis to a correction ΔZ of a compensated
 //! axis: between points (x_i, ΔZ_i) and (x_{i+1}, ΔZ_{i+1}),

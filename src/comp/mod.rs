@@ -3,7 +3,7 @@
 //! Two stages, as on a real control:
 //! - [`PositionComp`]: the NC's position command generator adds machine-error corrections
 //!   (backlash, thermal, cross/sag) once per generated command, i.e. at T2 in normal mode and
-//!   at T3 in direct-command mode (seed 001).
+//!   at T3 in direct-command mode (processing-mode patent, SPEC §3).
 //! - [`ServoComp`]: the amplifier adds per-axis feed-forwards at T3 (quadrant/TFF), into the
 //!   position command, the velocity command or the torque command.
 //!

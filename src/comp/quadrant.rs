@@ -1,4 +1,4 @@
-//! Quadrant (reversal) compensation that adapts to short strokes (seed 003).
+//! Quadrant (reversal) compensation that adapts to short strokes (quadrant patent, SPEC §5).
 //!
 //! In the amplifier, every T3: reversals are detected from the internal position command
 //! (the acc/dec output the position loop receives). At each reversal the stroke PA since

@@ -1,4 +1,4 @@
-//! Thermal displacement correction with automatic re-measurement (seed 002).
+//! Thermal displacement correction with automatic re-measurement (thermal patent, SPEC §4).
 //!
 //! A predictor gives F, the thermal displacement it expects at the measurement point
 //! (`measure_pos_mm`). It is the control's own model, deliberately not the plant: either an

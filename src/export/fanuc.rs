@@ -270,7 +270,7 @@ fn undocumented_entries(ctx: &Ctx) -> Vec<Pending> {
         if a.thermal.enabled {
             out.push(
                 Pending::undocumented(format!("axes.{}.thermal", a.name), shared::thermal_value(a))
-                    .note("the thermal displacement compensation with re-measurement (seed 002) has no parameter numbers documented here; nothing written. Simulated as omitted")
+                    .note("the thermal displacement compensation with re-measurement (thermal patent, SPEC §4) has no parameter numbers documented here; nothing written. Simulated as omitted")
                     .sim(vec![Change::Thermal { axis: i, frozen: false }], vec![i], false),
             );
         }

@@ -556,7 +556,7 @@ pub const STANDARD_DURATION_S: f64 = 24.0;
 /// The check set: 12 clean cases (a third on the scale), 4 single cases per effect kind
 /// (formulas in turn; lead error and thermal growth on the scale, quantization on both),
 /// 12 two-effect cases, and each again with a random channel skew (same seed, name
-/// suffixed `_skew`). Names are neutral (`case_000`): the truth is in [`Case::truth`].
+/// suffixed `_skew`). Names are neutral (`case_` and a number): the truth is in [`Case::truth`].
 pub fn standard_set(seed: u64, duration_s: f64) -> Vec<CaseSpec> {
     let mut plain: Vec<CaseSpec> = Vec::new();
     let case_seed = |i: usize| seed.wrapping_mul(1_000_003).wrapping_add(i as u64);

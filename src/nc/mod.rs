@@ -1,6 +1,6 @@
 //! The NC: one [`Channel`] per program path. Each T2 it hands the amplifier either one
 //! position per axis (normal mode: interpolated at T1, acc/dec at T1, subdivided to T2) or a
-//! batch of T3 samples per axis (direct-command mode, seed 001: every block is one T3 sample,
+//! batch of T3 samples per axis (direct-command mode, the processing-mode patent (SPEC §3): every block is one T3 sample,
 //! acc/dec at T3, sent as one batch per T2).
 //!
 //! Mode switches (initial parameter, G05P4/G05P0 in the program, or a PLC request) take

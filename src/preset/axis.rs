@@ -35,13 +35,13 @@ pub struct AxisParams {
     pub screw_thermal: ScrewThermal,
     /// Ball-screw lead (pitch) error in the plant.
     pub lead_error: LeadError,
-    /// Backlash compensation (seed 000).
+    /// Backlash compensation (backlash patent, SPEC §2).
     #[serde(default)]
     pub backlash: super::comp::BacklashParams,
-    /// Quadrant (reversal) compensation adapting to short strokes (seed 003).
+    /// Quadrant (reversal) compensation adapting to short strokes (quadrant patent, SPEC §5).
     #[serde(default)]
     pub quadrant: super::comp::QuadrantParams,
-    /// Thermal displacement correction with automatic re-measurement (seed 002).
+    /// Thermal displacement correction with automatic re-measurement (thermal patent, SPEC §4).
     #[serde(default)]
     pub thermal: super::comp::ThermalParams,
 }
@@ -323,7 +323,7 @@ pub struct StrokeFriction {
     pub recovery_mm: f64,
 }
 
-/// Backlash in the plant: a dead zone between motor and table (what seed 000 compensates).
+/// Backlash in the plant: a dead zone between motor and table (what the backlash patent, SPEC §2, compensates).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LostMotion {

@@ -1,5 +1,5 @@
-//! The compensation settings of a preset: backlash (seed 000), quadrant (seed 003), thermal
-//! correction (seed 002) and cross tables (seed 004). The state machines that act on them are
+//! The compensation settings of a preset: backlash (backlash patent, SPEC §2), quadrant (quadrant patent, SPEC §5), thermal
+//! correction (thermal patent, SPEC §4) and cross tables (cross-table patent, SPEC §6). The state machines that act on them are
 //! in [`crate::comp`]; here is only the data and its validation.
 
 use serde::{Deserialize, Serialize};
@@ -9,14 +9,14 @@ use super::axis::{POS_MM, TEMP_C};
 use super::fields::{Fields, Num, TableSpec, Walker};
 use crate::units;
 
-/// Limits of the thermal adjustment value E (seed 002 keeps E within 0.01 … 10).
+/// Limits of the thermal adjustment value E (thermal patent, SPEC §4 keeps E within 0.01 … 10).
 pub const E_MIN: f64 = 0.01;
 /// Upper limit of E.
 pub const E_MAX: f64 = 10.0;
 
-// ---- backlash (seed 000)
+// ---- backlash (backlash patent, SPEC §2)
 
-/// How the backlash correction is output after a reversal (seed 000, modes a–c and the variant).
+/// How the backlash correction is output after a reversal (backlash patent, SPEC §2, modes a–c and the variant).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum OutputMode {
@@ -73,7 +73,7 @@ impl Default for DirectionParams {
     }
 }
 
-/// Backlash compensation of one axis (seed 000): amount Q and an output mode per reversal.
+/// Backlash compensation of one axis (backlash patent, SPEC §2): amount Q and an output mode per reversal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BacklashParams {
@@ -99,9 +99,9 @@ impl Default for BacklashParams {
     }
 }
 
-// ---- quadrant (seed 003)
+// ---- quadrant (quadrant patent, SPEC §5)
 
-/// What a stroke of at least P0 does to the short-stroke count N (seed 003).
+/// What a stroke of at least P0 does to the short-stroke count N (quadrant patent, SPEC §5).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum NUpdate {
@@ -136,13 +136,13 @@ pub enum PulseShape {
     Exponential,
 }
 
-/// Quadrant (reversal) compensation of one axis, adapting to short strokes (seed 003).
+/// Quadrant (reversal) compensation of one axis, adapting to short strokes (quadrant patent, SPEC §5).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct QuadrantParams {
     /// Whether the compensation is installed.
     pub enabled: bool,
-    /// Adapt M and T to short strokes (seed 003); off = fixed TFF of M0 for T0.
+    /// Adapt M and T to short strokes (quadrant patent, SPEC §5); off = fixed TFF of M0 for T0.
     pub adaptive: bool,
     /// Pulse amount M0 for torque injection, N·m; applied in the new direction of motion.
     pub m0_torque_nm: f64,
@@ -207,9 +207,9 @@ impl QuadrantParams {
     }
 }
 
-// ---- thermal (seed 002)
+// ---- thermal (thermal patent, SPEC §4)
 
-/// What the thermal predictor computes F from (seed 002: operation and/or temperatures).
+/// What the thermal predictor computes F from (thermal patent, SPEC §4: operation and/or temperatures).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Source {
@@ -220,7 +220,7 @@ pub enum Source {
     Temperature,
 }
 
-/// When the thermal correction asks for a re-measurement (seed 002, variants 1–3), threshold Em.
+/// When the thermal correction asks for a re-measurement (thermal patent, SPEC §4, variants 1–3), threshold Em.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Judgement {
@@ -235,7 +235,7 @@ pub enum Judgement {
     Reference,
 }
 
-/// Thermal displacement correction of one axis with automatic re-measurement (seed 002).
+/// Thermal displacement correction of one axis with automatic re-measurement (thermal patent, SPEC §4).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ThermalParams {
@@ -309,9 +309,9 @@ impl ThermalParams {
     }
 }
 
-// ---- cross tables (seed 004)
+// ---- cross tables (cross-table patent, SPEC §6)
 
-/// One cross (sag) compensation table (seed 004): ΔZ of one axis over another's position.
+/// One cross (sag) compensation table (cross-table patent, SPEC §6): ΔZ of one axis over another's position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CrossTable {

@@ -114,7 +114,7 @@ pub struct Preset {
     /// Vertical-lathe crossbeam whose sag moves the tool posts' Z (off by default).
     #[serde(default)]
     pub crossbeam: Crossbeam,
-    /// Cross (sag) compensation tables (seed 004).
+    /// Cross (sag) compensation tables (cross-table patent, SPEC §6).
     #[serde(default)]
     pub cross: Vec<comp::CrossTable>,
     /// Programs, run length, PLC events and trace decimation.
@@ -172,14 +172,14 @@ pub struct Timing {
     pub t3_s: f64,
 }
 
-/// NC processing mode (seed 001), switchable at run time by G05P4/G05P0 or a PLC event.
+/// NC processing mode (processing-mode patent, SPEC §3), switchable at run time by G05P4/G05P0 or a PLC event.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Mode {
     /// Parse → interpolate at T1 → acc/dec → position command at T2 → amplifier subdivides.
     #[default]
     Normal,
-    /// Program blocks are already-interpolated T3 samples (seed 001, G05P4).
+    /// Program blocks are already-interpolated T3 samples (processing-mode patent, SPEC §3, G05P4).
     Direct,
 }
 
@@ -297,7 +297,7 @@ pub struct Scenario {
     /// Extra run time after the programs end and acc/dec has drained, s, so the axes settle.
     #[serde(default = "default_settle")]
     pub settle_s: f64,
-    /// PLC mode-switch requests at set times (seed 001).
+    /// PLC mode-switch requests at set times (processing-mode patent, SPEC §3).
     #[serde(default)]
     pub plc_events: Vec<PlcEvent>,
     /// Keep every n-th T3 sample in the trace (1 = every sample). Long thermal runs use more.
@@ -313,7 +313,7 @@ fn one() -> u32 {
     1
 }
 
-/// A PLC request to switch a channel's processing mode at a set time (seed 001).
+/// A PLC request to switch a channel's processing mode at a set time (processing-mode patent, SPEC §3).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlcEvent {
