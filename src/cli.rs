@@ -236,60 +236,11 @@ pub enum Command {
     /// Auto-tune the compensation on the simulated machine: search the parameters for the
     /// smallest error change at the program's reversals, print a before/after table per
     /// reversal, write the tuned preset. Never returns values worse than the start.
-    Tune {
-        /// Preset file, or `embedded:NAME.ron` for a shipped one.
-        #[arg(long, default_value = "embedded:default.ron")]
-        preset: String,
-        /// Axis to tune (default: the preset's first).
-        #[arg(long)]
-        axis: Option<String>,
-        /// What to tune, comma-separated: backlash, quadrant, thermal, cross.
-        #[arg(long, default_value = "backlash,quadrant")]
-        what: String,
-        /// Program to tune on instead of the preset's (first channel).
-        #[arg(long)]
-        program: Option<PathBuf>,
-        /// Write the tuned preset (and its programs, next to it) here.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Write the report (before/after figures, values, simulations) as JSON here.
-        #[arg(long)]
-        report: Option<PathBuf>,
-        /// Objective weights per µm: `peak=1,settled=1,rms=0.2` (the defaults).
-        #[arg(long)]
-        weights: Option<String>,
-        /// Seed of the extra starts (same seed, same result).
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Nelder–Mead iterations per start.
-        #[arg(long, default_value_t = 80)]
-        iters: u64,
-        /// Override a preset field before tuning (repeatable), as for simulate.
-        #[arg(long = "set", value_name = "PATH=VALUE")]
-        sets: Vec<String>,
-        /// Instead of the search, the dense-grid check: N values per searched number over
-        /// the same stages (offline: N^dims simulations); prints the best objective and
-        /// the time.
-        #[arg(long, value_name = "N")]
-        grid: Option<usize>,
-    },
+    Tune(tune::Args),
     /// Transfer check of the tune: independent machines (src/indep) with hidden effects are
     /// diagnosed, the compensation tuned on the fitted model and run on the machine; prints
     /// the reversal glitch on the machine before and after next to the model's prediction.
-    TuneTransfer {
-        /// First seed; one case per seed from it.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Cases.
-        #[arg(long, default_value_t = 3)]
-        cases: u64,
-        /// Hidden effects of each case, comma-separated (names of `gen-cases`).
-        #[arg(long, default_value = "backlash,coulomb_friction")]
-        effects: String,
-        /// Seconds of motion per case.
-        #[arg(long, default_value_t = 24.0)]
-        duration: f64,
-    },
+    TuneTransfer(tune::TransferArgs),
     /// Blind check of the diagnosis: generated cases with hidden effects.
     DiagnoseEval {
         /// Which generator makes the records: `independent` (a second simulator sharing no
@@ -476,8 +427,8 @@ pub fn run(cli: Cli) -> Result<()> {
                 apply,
             })
         }
-        Some(cmd @ Command::Tune { .. }) => tune::run_cmd(cmd),
-        Some(cmd @ Command::TuneTransfer { .. }) => tune::transfer_run(cmd),
+        Some(Command::Tune(a)) => tune::run(a),
+        Some(Command::TuneTransfer(a)) => tune::transfer_run(a),
         Some(Command::DiagnoseEval {
             generator,
             cases,

@@ -230,14 +230,7 @@ pub struct Machine {
 impl Machine {
     /// Builds a machine from a loaded preset, reading its program files.
     pub fn from_loaded(lp: &LoadedPreset) -> Result<Machine, MachineError> {
-        let texts = lp
-            .preset
-            .scenario
-            .programs
-            .iter()
-            .map(|p| Ok((p.clone(), lp.program_text(p)?)))
-            .collect::<Result<Vec<_>, PresetError>>()?;
-        Machine::new(&lp.preset, &texts)
+        Machine::new(&lp.preset, &lp.programs()?)
     }
 
     /// Builds a machine from a preset and the text of each channel's program

@@ -125,12 +125,6 @@ pub enum TuneError {
     Preset(#[from] crate::preset::PresetError),
 }
 
-impl TuneError {
-    fn from_preset(e: crate::preset::PresetError) -> TuneError {
-        TuneError::Preset(e)
-    }
-}
-
 /// The objective's weights, per µm of each figure.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Weights {
@@ -269,164 +263,100 @@ struct Dim {
     set: fn(&mut AxisParams, f64),
 }
 
+/// A searched number: its path below the axis (the field it reads and writes), its range;
+/// `int` for a whole-number field.
+macro_rules! dim {
+    ($path:expr, $lo:expr, $hi:expr, $($f:ident).+) => {
+        Dim {
+            path: $path,
+            lo: $lo,
+            hi: $hi,
+            int: false,
+            get: |a| a.$($f).+,
+            set: |a, v| a.$($f).+ = v,
+        }
+    };
+    (int $path:expr, $lo:expr, $hi:expr, $($f:ident).+) => {
+        Dim {
+            path: $path,
+            lo: $lo,
+            hi: $hi,
+            int: true,
+            get: |a| f64::from(a.$($f).+),
+            set: |a, v| a.$($f).+ = v as u32,
+        }
+    };
+}
+
+/// A direction's numbers by mode: distance (N, B) and time (M).
+macro_rules! direction_dims {
+    ($d:ident) => {
+        (
+            [
+                dim!(int concat!("backlash.", stringify!($d), ".parts_n"), 1.0, 32.0, backlash.$d.parts_n),
+                dim!(concat!("backlash.", stringify!($d), ".step_b_um"), 1.0, 2000.0, backlash.$d.step_b_um),
+            ],
+            dim!(int concat!("backlash.", stringify!($d), ".cycles_m"), 1.0, 64.0, backlash.$d.cycles_m),
+        )
+    };
+}
+
 /// The backlash numbers searched for the modes each direction uses now.
 fn backlash_dims(a: &AxisParams) -> Vec<Dim> {
     let mut d = vec![Dim {
-        path: "backlash.q_um",
-        lo: 0.0,
         hi: (4.0 * a.backlash.q_um).max(50.0),
-        int: false,
-        get: |a| a.backlash.q_um,
-        set: |a, v| a.backlash.q_um = v,
+        ..dim!("backlash.q_um", 0.0, 0.0, backlash.q_um)
     }];
-    let dirs: [(OutputMode, [Dim; 3]); 2] = [
+    for (mode, (distance, time)) in [
         (
             a.backlash.plus_to_minus.mode,
-            [
-                Dim {
-                    path: "backlash.plus_to_minus.parts_n",
-                    lo: 1.0,
-                    hi: 32.0,
-                    int: true,
-                    get: |a| f64::from(a.backlash.plus_to_minus.parts_n),
-                    set: |a, v| a.backlash.plus_to_minus.parts_n = v as u32,
-                },
-                Dim {
-                    path: "backlash.plus_to_minus.step_b_um",
-                    lo: 1.0,
-                    hi: 2000.0,
-                    int: false,
-                    get: |a| a.backlash.plus_to_minus.step_b_um,
-                    set: |a, v| a.backlash.plus_to_minus.step_b_um = v,
-                },
-                Dim {
-                    path: "backlash.plus_to_minus.cycles_m",
-                    lo: 1.0,
-                    hi: 64.0,
-                    int: true,
-                    get: |a| f64::from(a.backlash.plus_to_minus.cycles_m),
-                    set: |a, v| a.backlash.plus_to_minus.cycles_m = v as u32,
-                },
-            ],
+            direction_dims!(plus_to_minus),
         ),
         (
             a.backlash.minus_to_plus.mode,
-            [
-                Dim {
-                    path: "backlash.minus_to_plus.parts_n",
-                    lo: 1.0,
-                    hi: 32.0,
-                    int: true,
-                    get: |a| f64::from(a.backlash.minus_to_plus.parts_n),
-                    set: |a, v| a.backlash.minus_to_plus.parts_n = v as u32,
-                },
-                Dim {
-                    path: "backlash.minus_to_plus.step_b_um",
-                    lo: 1.0,
-                    hi: 2000.0,
-                    int: false,
-                    get: |a| a.backlash.minus_to_plus.step_b_um,
-                    set: |a, v| a.backlash.minus_to_plus.step_b_um = v,
-                },
-                Dim {
-                    path: "backlash.minus_to_plus.cycles_m",
-                    lo: 1.0,
-                    hi: 64.0,
-                    int: true,
-                    get: |a| f64::from(a.backlash.minus_to_plus.cycles_m),
-                    set: |a, v| a.backlash.minus_to_plus.cycles_m = v as u32,
-                },
-            ],
+            direction_dims!(minus_to_plus),
         ),
-    ];
-    for (mode, [n, b, m]) in dirs {
+    ] {
         match mode {
-            OutputMode::Distance => d.extend([n, b]),
-            OutputMode::Time => d.push(m),
+            OutputMode::Distance => d.extend(distance),
+            OutputMode::Time => d.push(time),
             OutputMode::Lump | OutputMode::Function => {}
         }
     }
     d
 }
 
-/// The quadrant numbers searched (M0 in the unit of its injection point).
+/// The quadrant numbers searched (M0 in the unit of its injection point, up to four times
+/// the value given).
 fn quadrant_dims(a: &AxisParams) -> Vec<Dim> {
-    let m0 = match a.quadrant.inject {
+    let q = &a.quadrant;
+    let m0 = match q.inject {
         Injection::Torque => Dim {
-            path: "quadrant.m0_torque_nm",
-            lo: 0.0,
-            hi: (4.0 * a.quadrant.m0_torque_nm).max(2.0),
-            int: false,
-            get: |a| a.quadrant.m0_torque_nm,
-            set: |a, v| a.quadrant.m0_torque_nm = v,
+            hi: (4.0 * q.m0_torque_nm).max(2.0),
+            ..dim!("quadrant.m0_torque_nm", 0.0, 0.0, quadrant.m0_torque_nm)
         },
         Injection::Velocity => Dim {
-            path: "quadrant.m0_vel_mm_per_s",
-            lo: 0.0,
-            hi: (4.0 * a.quadrant.m0_vel_mm_per_s).max(5.0),
-            int: false,
-            get: |a| a.quadrant.m0_vel_mm_per_s,
-            set: |a, v| a.quadrant.m0_vel_mm_per_s = v,
+            hi: (4.0 * q.m0_vel_mm_per_s).max(5.0),
+            ..dim!(
+                "quadrant.m0_vel_mm_per_s",
+                0.0,
+                0.0,
+                quadrant.m0_vel_mm_per_s
+            )
         },
         Injection::Position => Dim {
-            path: "quadrant.m0_pos_um",
-            lo: 0.0,
-            hi: (4.0 * a.quadrant.m0_pos_um).max(20.0),
-            int: false,
-            get: |a| a.quadrant.m0_pos_um,
-            set: |a, v| a.quadrant.m0_pos_um = v,
+            hi: (4.0 * q.m0_pos_um).max(20.0),
+            ..dim!("quadrant.m0_pos_um", 0.0, 0.0, quadrant.m0_pos_um)
         },
     };
     vec![
         m0,
-        Dim {
-            path: "quadrant.t0_ms",
-            lo: 0.5,
-            hi: 100.0,
-            int: false,
-            get: |a| a.quadrant.t0_ms,
-            set: |a, v| a.quadrant.t0_ms = v,
-        },
-        Dim {
-            path: "quadrant.a_mag",
-            lo: 1.0,
-            hi: 5.0,
-            int: false,
-            get: |a| a.quadrant.a_mag,
-            set: |a, v| a.quadrant.a_mag = v,
-        },
-        Dim {
-            path: "quadrant.b_rate",
-            lo: 0.5,
-            hi: 50.0,
-            int: false,
-            get: |a| a.quadrant.b_rate,
-            set: |a, v| a.quadrant.b_rate = v,
-        },
-        Dim {
-            path: "quadrant.c_mag",
-            lo: 0.5,
-            hi: 5.0,
-            int: false,
-            get: |a| a.quadrant.c_mag,
-            set: |a, v| a.quadrant.c_mag = v,
-        },
-        Dim {
-            path: "quadrant.d_rate",
-            lo: 0.5,
-            hi: 50.0,
-            int: false,
-            get: |a| a.quadrant.d_rate,
-            set: |a, v| a.quadrant.d_rate = v,
-        },
-        Dim {
-            path: "quadrant.p0_mm",
-            lo: 0.5,
-            hi: 200.0,
-            int: false,
-            get: |a| a.quadrant.p0_mm,
-            set: |a, v| a.quadrant.p0_mm = v,
-        },
+        dim!("quadrant.t0_ms", 0.5, 100.0, quadrant.t0_ms),
+        dim!("quadrant.a_mag", 1.0, 5.0, quadrant.a_mag),
+        dim!("quadrant.b_rate", 0.5, 50.0, quadrant.b_rate),
+        dim!("quadrant.c_mag", 0.5, 5.0, quadrant.c_mag),
+        dim!("quadrant.d_rate", 0.5, 50.0, quadrant.d_rate),
+        dim!("quadrant.p0_mm", 0.5, 200.0, quadrant.p0_mm),
     ]
 }
 
@@ -589,11 +519,7 @@ fn stage(
     starts: Vec<Start>,
     dims_of: fn(&AxisParams) -> Vec<Dim>,
 ) -> Result<Option<(Preset, f64)>, TuneError> {
-    let threads = if job.threads == 0 {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
-    } else {
-        job.threads
-    };
+    let threads = job.thread_count();
     let next = AtomicUsize::new(0);
     let results: Mutex<Vec<Option<(Preset, f64)>>> = Mutex::new(vec![None; starts.len()]);
     std::thread::scope(|sc| {
@@ -642,6 +568,15 @@ fn stage(
 }
 
 impl Job<'_> {
+    /// Threads for the starts or grid points (0 in the job: all cores).
+    fn thread_count(&self) -> usize {
+        if self.threads == 0 {
+            std::thread::available_parallelism().map_or(2, |n| n.get())
+        } else {
+            self.threads
+        }
+    }
+
     fn progress_cancelled(&self, shared: &Shared<'_>) -> bool {
         shared.progress.cancel.load(Ordering::Relaxed)
     }
@@ -652,6 +587,38 @@ fn jitter(seed: u64, k: u64, n: usize) -> Vec<f64> {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed.wrapping_add(k));
     (0..n).map(|_| rng.r#gen::<f64>()).collect()
+}
+
+/// `p` with each pair of backlash output modes (lump, distance, time) on axis `axis_i`: the
+/// backlash stage's bases.
+fn mode_pairs(p: &Preset, axis_i: usize) -> Vec<Preset> {
+    let modes = [OutputMode::Lump, OutputMode::Distance, OutputMode::Time];
+    modes
+        .iter()
+        .flat_map(|&m1| {
+            modes.iter().map(move |&m2| {
+                let mut q = p.clone();
+                q.axes[axis_i].backlash.plus_to_minus.mode = m1;
+                q.axes[axis_i].backlash.minus_to_plus.mode = m2;
+                q
+            })
+        })
+        .collect()
+}
+
+/// What the starts of one tune share, with the start's objective counted as the first
+/// evaluation; every candidate runs as long as the start did.
+fn shared_for<'a>(job: &Job<'_>, start_f: f64, progress: &'a Progress<'a>) -> Shared<'a> {
+    Shared {
+        run_s: job
+            .preset
+            .scenario
+            .duration_s
+            .or_else(|| last_t(job.preset, job.programs)),
+        evals: AtomicUsize::new(1),
+        best: Mutex::new((start_f, vec![(1, start_f)])),
+        progress,
+    }
 }
 
 /// The axis's index, once every compensation to tune is on and the preset has what it
@@ -715,15 +682,10 @@ fn search(
         cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
     }
     if job.what.contains(&What::Backlash) {
-        let mut starts = vec![];
-        for m1 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
-            for m2 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
-                let mut p = cur.clone();
-                p.axes[axis_i].backlash.plus_to_minus.mode = m1;
-                p.axes[axis_i].backlash.minus_to_plus.mode = m2;
-                starts.push(Start { base: p, x0: None });
-            }
-        }
+        let starts = mode_pairs(&cur, axis_i)
+            .into_iter()
+            .map(|base| Start { base, x0: None })
+            .collect();
         if let Some((p, f)) = stage(job, shared, axis_i, starts, backlash_dims)?
             && f < cur_f
         {
@@ -773,11 +735,7 @@ fn grid_stage(
         .map(|d| n.saturating_pow(d.len() as u32))
         .collect();
     let total: usize = counts.iter().sum();
-    let threads = if job.threads == 0 {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
-    } else {
-        job.threads
-    };
+    let threads = job.thread_count();
     let next = AtomicUsize::new(0);
     let best: Mutex<Option<(usize, f64)>> = Mutex::new(None);
     let locate = |mut i: usize| -> Option<(usize, usize)> {
@@ -869,28 +827,11 @@ pub fn grid(
     let t0 = std::time::Instant::now();
     let axis_i = check(job)?;
     let before = evaluate(job.preset, job.programs, &job.axis, &job.weights)?;
-    let shared = Shared {
-        run_s: job
-            .preset
-            .scenario
-            .duration_s
-            .or_else(|| last_t(job.preset, job.programs)),
-        evals: AtomicUsize::new(1),
-        best: Mutex::new((before.objective, vec![])),
-        progress,
-    };
+    let shared = shared_for(job, before.objective, progress);
     let mut cur = job.preset.clone();
     let mut cur_f = before.objective;
     if job.what.contains(&What::Backlash) {
-        let mut bases = vec![];
-        for m1 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
-            for m2 in [OutputMode::Lump, OutputMode::Distance, OutputMode::Time] {
-                let mut p = cur.clone();
-                p.axes[axis_i].backlash.plus_to_minus.mode = m1;
-                p.axes[axis_i].backlash.minus_to_plus.mode = m2;
-                bases.push(p);
-            }
-        }
+        let bases = mode_pairs(&cur, axis_i);
         if let Some((p, f)) = grid_stage(job, &shared, axis_i, &bases, backlash_dims, per_dim)
             && f < cur_f
         {
@@ -934,17 +875,7 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
             axis: job.axis.clone(),
         });
     }
-    let run_s = job
-        .preset
-        .scenario
-        .duration_s
-        .or_else(|| last_t(job.preset, job.programs));
-    let shared = Shared {
-        run_s,
-        evals: AtomicUsize::new(1),
-        best: Mutex::new((before.objective, vec![(1, before.objective)])),
-        progress,
-    };
+    let shared = shared_for(job, before.objective, progress);
     let (cur, cur_f) = search(job, &shared, axis_i, before.objective)?;
     // Never worse than the start: the comparison is on the same figures.
     let kept_start = cur_f >= before.objective;
@@ -1203,14 +1134,8 @@ pub fn transfer(
         a.quadrant.inject = Injection::Torque;
         a.quadrant.m0_torque_nm = 0.0;
     }
-    let lp = crate::preset::load_embedded("emps.ron").map_err(TuneError::from_preset)?;
-    let programs: Vec<(String, String)> = lp
-        .preset
-        .scenario
-        .programs
-        .iter()
-        .filter_map(|p| Some((p.clone(), lp.program_text(p).ok()?)))
-        .collect();
+    let lp = crate::preset::load_embedded("emps.ron").map_err(TuneError::Preset)?;
+    let programs = lp.programs().map_err(TuneError::Preset)?;
     model.scenario = lp.preset.scenario.clone();
     let job = Job {
         preset: &model,

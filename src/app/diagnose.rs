@@ -39,6 +39,18 @@ impl Basis {
         }
     }
 
+    /// Why a result on `basis` cannot be applied now: applied already, computed on an
+    /// unknown preset, or on another one (see [`Basis::stale`]); None when it may.
+    pub fn why_not(basis: Option<&Basis>, applied: bool, wb: &Workbench) -> Option<String> {
+        if applied {
+            return Some("applied already (Undo restores the values before it)".into());
+        }
+        match basis {
+            Some(b) => b.stale(wb),
+            None => Some("the result's preset is unknown: run it again to apply".into()),
+        }
+    }
+
     /// Why a result on this basis may not be applied to the workbench as it is now; None
     /// when it still belongs to it.
     pub fn stale(&self, wb: &Workbench) -> Option<String> {
@@ -182,13 +194,7 @@ impl Workbench {
         if rep.selected.is_empty() || rep.fitted.is_none() {
             return Some("no effect was named: nothing to apply".into());
         }
-        if self.diag.applied {
-            return Some("applied already (Undo restores the values before it)".into());
-        }
-        match &self.diag.basis {
-            Some(b) => b.stale(self),
-            None => Some("the result's preset is unknown: run it again to apply".into()),
-        }
+        Basis::why_not(self.diag.basis.as_ref(), self.diag.applied, self)
     }
 
     /// "Apply to model": the preset takes the fitted effects (only onto the preset they
@@ -325,25 +331,11 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         if r.clicked() {
             wb.apply_diagnosis();
         }
-        if let Some((what, _)) = wb.undo.last() {
-            let what = what.clone();
-            if ui
-                .button("Undo apply")
-                .on_hover_text(format!("restore the preset before: {what}"))
-                .clicked()
-            {
-                wb.undo_apply();
-            }
-        }
+        super::undo_apply_ui(wb, ui);
     });
     if wb.diag.report.is_some() {
         match wb.diagnosis_not_applicable() {
-            Some(why) => {
-                ui.colored_label(
-                    egui::Color32::from_rgb(230, 160, 60),
-                    format!("Apply is off: {why}"),
-                );
-            }
+            Some(why) => super::apply_off_ui(ui, &why),
             None => apply_diff_ui(wb, ui),
         }
     }

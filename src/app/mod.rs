@@ -144,13 +144,7 @@ impl Workbench {
     /// A workbench on a shipped preset, without autosave (tests, benchmarks).
     pub fn new_embedded(name: &str) -> Result<Workbench> {
         let lp = preset::load_embedded(name)?;
-        let programs = lp
-            .preset
-            .scenario
-            .programs
-            .iter()
-            .map(|p| Ok((p.clone(), lp.program_text(p)?)))
-            .collect::<Result<Vec<_>>>()?;
+        let programs = lp.programs()?;
         let mut wb = Workbench::with(lp.preset, programs, None, name.to_owned())?;
         wb.apply_scenario_view();
         Ok(wb)
@@ -404,13 +398,7 @@ impl Workbench {
     pub fn open_file(&mut self, path: PathBuf) {
         let r = (|| -> Result<Workbench> {
             let lp = preset::load(&path.display().to_string())?;
-            let programs = lp
-                .preset
-                .scenario
-                .programs
-                .iter()
-                .map(|p| Ok((p.clone(), lp.program_text(p)?)))
-                .collect::<Result<Vec<_>>>()?;
+            let programs = lp.programs()?;
             Workbench::with(
                 lp.preset,
                 programs,
@@ -472,25 +460,7 @@ impl Workbench {
     /// Saves the preset (atomically) to `path`, with its programs next to it.
     pub fn save_to(&mut self, path: PathBuf) {
         // The preset and its programs are one unit: all of them are written, or none.
-        let r = (|| -> Result<()> {
-            let ron = self.preset.to_ron()?;
-            let dir = match path.parent() {
-                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-                _ => PathBuf::from("."),
-            };
-            let name = path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .with_context(|| format!("{}: not a file name", path.display()))?;
-            let mut files = vec![(name, ron.into_bytes())];
-            files.extend(
-                self.programs
-                    .iter()
-                    .map(|(n, text)| (n.clone(), text.clone().into_bytes())),
-            );
-            axisbench::fsutil::write_all_atomic(&dir, &files)?;
-            Ok(())
-        })();
+        let r = self.preset.save_with_programs(&path, &self.programs);
         match r {
             Ok(()) => {
                 self.saved_ron = self.preset.to_ron().unwrap_or_default();
@@ -1077,6 +1047,28 @@ impl Workbench {
             let _ = session::write(&file, &text);
         }
     }
+}
+
+/// "Undo apply" while an Apply (of a diagnosis or a tune) can be undone.
+fn undo_apply_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
+    let Some(what) = wb.undo.last().map(|(w, _)| w.clone()) else {
+        return;
+    };
+    if ui
+        .button("Undo apply")
+        .on_hover_text(format!("restore the preset before: {what}"))
+        .clicked()
+    {
+        wb.undo_apply();
+    }
+}
+
+/// Why an Apply button is off, under it.
+fn apply_off_ui(ui: &mut egui::Ui, why: &str) {
+    ui.colored_label(
+        egui::Color32::from_rgb(230, 160, 60),
+        format!("Apply is off: {why}"),
+    );
 }
 
 /// Crops the plot's rectangle out of a window screenshot and writes it as PNG, atomically.

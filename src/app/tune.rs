@@ -191,13 +191,7 @@ impl Workbench {
         if r.outcome.kept_start {
             return Some("nothing beat the values in force: nothing to apply".into());
         }
-        if self.tune.applied {
-            return Some("applied already (Undo restores the values before it)".into());
-        }
-        match &self.tune.basis {
-            Some(b) => b.stale(self),
-            None => Some("the result's preset is unknown: run it again to apply".into()),
-        }
+        Basis::why_not(self.tune.basis.as_ref(), self.tune.applied, self)
     }
 
     /// Apply: the preset takes the tuned values; the previous preset is one Undo away.
@@ -284,22 +278,10 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         {
             wb.apply_tune();
         }
-        if let Some((what, _)) = wb.undo.last() {
-            let what = what.clone();
-            if ui
-                .button("Undo apply")
-                .on_hover_text(format!("restore the preset before: {what}"))
-                .clicked()
-            {
-                wb.undo_apply();
-            }
-        }
+        super::undo_apply_ui(wb, ui);
     });
     if let (Some(_), Some(why)) = (&wb.tune.result, wb.tune_not_applicable()) {
-        ui.colored_label(
-            egui::Color32::from_rgb(230, 160, 60),
-            format!("Apply is off: {why}"),
-        );
+        super::apply_off_ui(ui, &why);
     }
 }
 

@@ -10,58 +10,51 @@ use axisbench::units::{fmt_qty, mm_to_um};
 
 use super::{load_with_sets, program_texts};
 
+/// The arguments of `axisbench tune`.
+#[derive(clap::Args, Debug)]
 pub struct Args {
-    pub preset: String,
-    pub axis: Option<String>,
-    pub what: String,
-    pub program: Option<PathBuf>,
-    pub out: Option<PathBuf>,
-    pub report: Option<PathBuf>,
-    pub weights: Option<String>,
-    pub seed: u64,
-    pub iters: u64,
-    pub sets: Vec<String>,
-    pub grid: Option<usize>,
-}
-
-/// `axisbench tune …` from its parsed command.
-pub fn run_cmd(cmd: super::Command) -> Result<()> {
-    let super::Command::Tune {
-        preset,
-        axis,
-        what,
-        program,
-        out,
-        report,
-        weights,
-        seed,
-        iters,
-        sets,
-        grid,
-    } = cmd
-    else {
-        anyhow::bail!("not a tune command");
-    };
-    super::count_flag("--iters", iters, 1, 100_000)?;
-    if let Some(n) = grid {
-        super::count_flag("--grid", n as u64, 2, 64)?;
-    }
-    run(Args {
-        grid,
-        preset,
-        axis,
-        what,
-        program,
-        out,
-        report,
-        weights,
-        seed,
-        iters,
-        sets,
-    })
+    /// Preset file, or `embedded:NAME.ron` for a shipped one.
+    #[arg(long, default_value = "embedded:default.ron")]
+    preset: String,
+    /// Axis to tune (default: the preset's first).
+    #[arg(long)]
+    axis: Option<String>,
+    /// What to tune, comma-separated: backlash, quadrant, thermal, cross.
+    #[arg(long, default_value = "backlash,quadrant")]
+    what: String,
+    /// Program to tune on instead of the preset's (first channel).
+    #[arg(long)]
+    program: Option<PathBuf>,
+    /// Write the tuned preset (and its programs, next to it) here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Write the report (before/after figures, values, simulations) as JSON here.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Objective weights per µm: `peak=1,settled=1,rms=0.2` (the defaults).
+    #[arg(long)]
+    weights: Option<String>,
+    /// Seed of the extra starts (same seed, same result).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Nelder–Mead iterations per start.
+    #[arg(long, default_value_t = 80)]
+    iters: u64,
+    /// Override a preset field before tuning (repeatable), as for simulate.
+    #[arg(long = "set", value_name = "PATH=VALUE")]
+    sets: Vec<String>,
+    /// Instead of the search, the dense-grid check: N values per searched number over
+    /// the same stages (offline: N^dims simulations); prints the best objective and
+    /// the time.
+    #[arg(long, value_name = "N")]
+    grid: Option<usize>,
 }
 
 pub fn run(a: Args) -> Result<()> {
+    super::count_flag("--iters", a.iters, 1, 100_000)?;
+    if let Some(n) = a.grid {
+        super::count_flag("--grid", n as u64, 2, 64)?;
+    }
     let what = What::parse_list(&a.what)?;
     let weights = match &a.weights {
         Some(w) => Weights::parse(w)?,
@@ -131,21 +124,8 @@ pub fn run(a: Args) -> Result<()> {
     eprintln!();
     print_outcome(&out);
     if let Some(path) = &a.out {
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .with_context(|| format!("--out {}: not a file name", path.display()))?;
-        let mut files = vec![(name, out.preset.to_ron()?.into_bytes())];
-        files.extend(
-            texts
-                .iter()
-                .map(|(n, t)| (n.clone(), t.clone().into_bytes())),
-        );
-        axisbench::fsutil::write_all_atomic(&dir, &files)
+        out.preset
+            .save_with_programs(path, &texts)
             .with_context(|| format!("writing the tuned preset {}", path.display()))?;
         say!("tuned preset: {} (with its programs)", path.display());
     }
@@ -210,20 +190,28 @@ fn print_outcome(o: &tune::Outcome) {
     }
 }
 
-/// `axisbench tune-transfer …` from its parsed command.
-pub fn transfer_run(cmd: super::Command) -> Result<()> {
-    let super::Command::TuneTransfer {
-        seed,
-        cases,
-        effects,
-        duration,
-    } = cmd
-    else {
-        anyhow::bail!("not a tune-transfer command");
-    };
-    super::count_flag("--cases", cases, 1, 100)?;
-    super::flag("--duration", duration, 5.0, 600.0, "s")?;
-    transfer_cmd(seed, cases, &effects, duration)
+/// The arguments of `axisbench tune-transfer`.
+#[derive(clap::Args, Debug)]
+pub struct TransferArgs {
+    /// First seed; one case per seed from it.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Cases.
+    #[arg(long, default_value_t = 3)]
+    cases: u64,
+    /// Hidden effects of each case, comma-separated (names of `gen-cases`).
+    #[arg(long, default_value = "backlash,coulomb_friction")]
+    effects: String,
+    /// Seconds of motion per case.
+    #[arg(long, default_value_t = 24.0)]
+    duration: f64,
+}
+
+/// `axisbench tune-transfer …` from its arguments.
+pub fn transfer_run(a: TransferArgs) -> Result<()> {
+    super::count_flag("--cases", a.cases, 1, 100)?;
+    super::flag("--duration", a.duration, 5.0, 600.0, "s")?;
+    transfer_cmd(a.seed, a.cases, &a.effects, a.duration)
 }
 
 /// `axisbench tune-transfer`: one line per case, then the share of the predicted cut the

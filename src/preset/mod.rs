@@ -352,6 +352,10 @@ pub enum PresetError {
         /// The underlying I/O error.
         source: std::io::Error,
     },
+    /// The preset and its programs could not be written (none of them was); the error
+    /// names the step and the path.
+    #[error(transparent)]
+    Write(#[from] crate::fsutil::FsError),
     /// The text is not valid RON for a preset (including unknown fields).
     #[error("{file}:{line}:{col}: {msg}")]
     Syntax {
@@ -415,6 +419,16 @@ pub struct LoadedPreset {
 }
 
 impl LoadedPreset {
+    /// Every program of the scenario as (name, text), one per channel.
+    pub fn programs(&self) -> Result<Vec<(String, String)>, PresetError> {
+        self.preset
+            .scenario
+            .programs
+            .iter()
+            .map(|p| Ok((p.clone(), self.program_text(p)?)))
+            .collect()
+    }
+
     /// Reads one of the scenario's program files (embedded presets read embedded programs).
     pub fn program_text(&self, name: &str) -> Result<String, PresetError> {
         match &self.dir {
@@ -487,6 +501,36 @@ impl Preset {
             t.enabled = false;
         }
         q
+    }
+
+    /// Writes the preset to `path` and its programs (name, text) next to it, all or
+    /// nothing: a preset names its programs relative to itself, so they travel together.
+    pub fn save_with_programs(
+        &self,
+        path: &std::path::Path,
+        programs: &[(String, String)],
+    ) -> Result<(), PresetError> {
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .ok_or_else(|| crate::fsutil::FsError {
+                op: "write",
+                path: path.to_path_buf(),
+                reason: "not a file name".into(),
+                kind: std::io::ErrorKind::InvalidInput,
+            })?;
+        let mut files = vec![(name, self.to_ron()?.into_bytes())];
+        files.extend(
+            programs
+                .iter()
+                .map(|(n, text)| (n.clone(), text.clone().into_bytes())),
+        );
+        crate::fsutil::write_all_atomic(&dir, &files)?;
+        Ok(())
     }
 
     /// Serializes to the RON preset format.

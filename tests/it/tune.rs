@@ -10,13 +10,7 @@ use axisbench::units::mm_to_um;
 
 fn preset(name: &str, sets: &[(&str, &str)]) -> (Preset, Vec<(String, String)>) {
     let lp = load_embedded(name).expect("shipped preset");
-    let programs = lp
-        .preset
-        .scenario
-        .programs
-        .iter()
-        .map(|p| (p.clone(), lp.program_text(p).expect("program")))
-        .collect();
+    let programs = lp.programs().expect("programs");
     let mut p = lp.preset.clone();
     for (k, v) in sets {
         p = p.set(k, v).expect("a valid override");
