@@ -598,8 +598,9 @@ impl Machine {
             self.reserve_rows(until_k.saturating_sub(self.k));
         }
         let check = u64::from(self.n23).max(64);
+        let mut next_check = (self.k / check + 1) * check;
         while !self.done() && self.k < max_k {
-            self.advance(max_k - self.k, true, check)?;
+            self.advance(max_k - self.k, true, check, &mut next_check)?;
         }
         self.health()
     }
@@ -616,9 +617,10 @@ impl Machine {
     fn run_steps_staged(&mut self, n: u64) -> Result<(), MachineError> {
         self.reserve_rows(n);
         let check = u64::from(self.n23).max(64);
+        let mut next_check = (self.k / check + 1) * check;
         let end = self.k + n;
         while self.k < end {
-            self.advance(end - self.k, false, check)?;
+            self.advance(end - self.k, false, check, &mut next_check)?;
         }
         self.health()
     }
@@ -627,19 +629,22 @@ impl Machine {
     /// ([`Machine::block_ready`]), one step otherwise. Checks the health whenever the step
     /// count passes a multiple of `check`. With `until_done` a block ends at the step after
     /// which [`Machine::done`] holds, as single steps would.
+    /// `next_check` is the next multiple of `check` (kept by the caller, so the hot loop
+    /// divides once per check, not twice per T2 period).
     fn advance(
         &mut self,
         max_steps: u64,
         until_done: bool,
         check: u64,
+        next_check: &mut u64,
     ) -> Result<(), MachineError> {
-        let before = self.k / check;
         if self.block_ready() {
             self.run_block(max_steps, until_done);
         } else {
             self.step();
         }
-        if self.k / check != before {
+        if self.k >= *next_check {
+            *next_check = (self.k / check + 1) * check;
             self.health()?;
         }
         Ok(())
@@ -917,13 +922,15 @@ impl Machine {
             self.t3_s * n23 as f64
         };
         for g in 0..gens {
+            // (g + 1)·n23 / gens periods of the T2 segment are done after generation g.
+            let done = if any_direct { g + 1 } else { n23 } as f64;
             for (i, a) in self.axes.iter().enumerate() {
                 let prev_raw = a.seg.end_m();
                 self.comp_cmd[i] = match self.ch_mode[a.channel] {
                     Mode::Direct => self.ch_batch[a.channel][a.ch_idx * n23 + g],
                     Mode::Normal => {
                         let target = self.ch_target[a.channel][a.ch_idx];
-                        prev_raw + (target - prev_raw) * ((g + 1) * n23 / gens) as f64 / n23 as f64
+                        prev_raw + (target - prev_raw) * done / n23 as f64
                     }
                 };
             }
@@ -947,7 +954,8 @@ impl Machine {
                     a.buf_comp[n23 - 1] = comp;
                 }
             }
-            self.comp_prev.clone_from(&self.comp_cmd);
+            // comp_cmd is written afresh for every axis before it is read again.
+            std::mem::swap(&mut self.comp_prev, &mut self.comp_cmd);
         }
         for a in &mut self.axes {
             a.seg.next_segment(a.buf_raw[n23 - 1]);

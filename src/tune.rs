@@ -213,10 +213,32 @@ pub struct Job<'a> {
     pub threads: usize,
 }
 
+/// Where a running tune stands, handed to [`Progress::report`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Status {
+    /// Simulations run so far.
+    pub simulations: usize,
+    /// The best objective so far.
+    pub best: f64,
+    /// Parts of the search finished: Nelder–Mead starts and measuring steps (thermal,
+    /// cross). Each part is a bounded amount of work, so their share is the progress bar.
+    pub parts_done: usize,
+    /// Parts of the search in all (0 for the grid check, whose count is the simulations').
+    pub parts_total: usize,
+}
+
+impl Status {
+    /// The share of the search finished, 0–1; `None` when the parts are not counted.
+    pub fn share_done(&self) -> Option<f64> {
+        (self.parts_total > 0).then(|| self.parts_done as f64 / self.parts_total as f64)
+    }
+}
+
 /// Progress and cancel, shared with a GUI or the CLI's progress line.
 pub struct Progress<'a> {
-    /// Called with (evaluations so far, best objective so far).
-    pub report: &'a (dyn Fn(usize, f64) + Sync),
+    /// Called whenever the best objective improves and whenever a part of the search
+    /// finishes.
+    pub report: &'a (dyn Fn(Status) + Sync),
     /// Set from outside to stop; the tune then returns [`TuneError::Cancelled`].
     pub cancel: &'a AtomicBool,
 }
@@ -237,6 +259,9 @@ pub struct Outcome {
     pub before: Figures,
     /// Figures with the tuned values.
     pub after: Figures,
+    /// Figures of the same program on the ideal axis ([`ideal_axis`]): the floor, what is
+    /// left of the glitch with no play and no friction to compensate.
+    pub floor: Figures,
     /// Whether the start stayed (no start beat it).
     pub kept_start: bool,
     /// Simulations run.
@@ -391,6 +416,20 @@ pub fn evaluate(
     })
 }
 
+/// `p` with axis `axis_i` ideal: no play, no friction, and so no backlash or quadrant
+/// compensation (they would only add error there). The rest of the machine (servo, drive,
+/// heat) stays: what is left is the servo's own following error at the reversal.
+pub fn ideal_axis(p: &Preset, axis_i: usize) -> Preset {
+    let mut q = p.clone();
+    if let Some(a) = q.axes.get_mut(axis_i) {
+        a.lost_motion.enabled = false;
+        a.friction.enabled = false;
+        a.backlash.enabled = false;
+        a.quadrant.enabled = false;
+    }
+    q
+}
+
 /// How long the programs run on `p` (to their end and the settling time), s.
 fn last_t(p: &Preset, programs: &[(String, String)]) -> Option<f64> {
     let mut m = Machine::new(p, programs).ok()?;
@@ -416,6 +455,30 @@ struct Shared<'a> {
     evals: AtomicUsize,
     best: Mutex<(f64, Vec<(usize, f64)>)>,
     progress: &'a Progress<'a>,
+    /// See [`Status::parts_total`].
+    parts_total: usize,
+    parts_done: AtomicUsize,
+}
+
+impl Shared<'_> {
+    /// Hands the current [`Status`] to the progress report, with `best` if known.
+    fn report(&self, best: Option<f64>) {
+        let best = best
+            .or_else(|| self.best.lock().ok().map(|b| b.0))
+            .unwrap_or(f64::NAN);
+        (self.progress.report)(Status {
+            simulations: self.evals.load(Ordering::Relaxed),
+            best,
+            parts_done: self.parts_done.load(Ordering::Relaxed),
+            parts_total: self.parts_total,
+        });
+    }
+
+    /// One part of the search done.
+    fn part_done(&self) {
+        self.parts_done.fetch_add(1, Ordering::Relaxed);
+        self.report(None);
+    }
 }
 
 impl Problem<'_> {
@@ -461,12 +524,16 @@ impl CostFunction for Problem<'_> {
         let out: f64 = x.iter().map(|u| (u - u.clamp(0.0, 1.0)).abs()).sum::<f64>();
         let f = f + out * 100.0;
         let k = self.shared.evals.fetch_add(1, Ordering::Relaxed) + 1;
-        if let Ok(mut b) = self.shared.best.lock()
-            && f < b.0
-        {
-            b.0 = f;
-            b.1.push((k, f));
-            (self.shared.progress.report)(k, f);
+        let improved = match self.shared.best.lock() {
+            Ok(mut b) if f < b.0 => {
+                b.0 = f;
+                b.1.push((k, f));
+                true
+            }
+            _ => false,
+        };
+        if improved {
+            self.shared.report(Some(f));
         }
         Ok(f)
     }
@@ -550,6 +617,7 @@ fn stage(
                     if let Ok(mut r) = results.lock() {
                         r[i] = out;
                     }
+                    shared.part_done();
                 }
             });
         }
@@ -589,14 +657,16 @@ fn jitter(seed: u64, k: u64, n: usize) -> Vec<f64> {
     (0..n).map(|_| rng.r#gen::<f64>()).collect()
 }
 
+/// The output modes the backlash stage tries for each direction.
+const BACKLASH_MODES: [OutputMode; 3] = [OutputMode::Lump, OutputMode::Distance, OutputMode::Time];
+
 /// `p` with each pair of backlash output modes (lump, distance, time) on axis `axis_i`: the
 /// backlash stage's bases.
 fn mode_pairs(p: &Preset, axis_i: usize) -> Vec<Preset> {
-    let modes = [OutputMode::Lump, OutputMode::Distance, OutputMode::Time];
-    modes
+    BACKLASH_MODES
         .iter()
         .flat_map(|&m1| {
-            modes.iter().map(move |&m2| {
+            BACKLASH_MODES.iter().map(move |&m2| {
                 let mut q = p.clone();
                 q.axes[axis_i].backlash.plus_to_minus.mode = m1;
                 q.axes[axis_i].backlash.minus_to_plus.mode = m2;
@@ -608,8 +678,15 @@ fn mode_pairs(p: &Preset, axis_i: usize) -> Vec<Preset> {
 
 /// What the starts of one tune share, with the start's objective counted as the first
 /// evaluation; every candidate runs as long as the start did.
-fn shared_for<'a>(job: &Job<'_>, start_f: f64, progress: &'a Progress<'a>) -> Shared<'a> {
+fn shared_for<'a>(
+    job: &Job<'_>,
+    start_f: f64,
+    progress: &'a Progress<'a>,
+    parts_total: usize,
+) -> Shared<'a> {
     Shared {
+        parts_total,
+        parts_done: AtomicUsize::new(0),
         run_s: job
             .preset
             .scenario
@@ -664,6 +741,20 @@ fn check(job: &Job<'_>) -> Result<usize, TuneError> {
 /// The measured parts, then the backlash starts (every pair of output modes), then the
 /// quadrant starts (the values given and seeded points); each stage keeps its best only
 /// when it beats what came before. Returns the preset and its objective.
+/// Seeded starts of the quadrant stage, besides the values given.
+const QUADRANT_EXTRA_STARTS: u64 = 3;
+
+/// The parts [`search`] runs for `what` (see [`Status::parts_done`]).
+fn search_parts(what: &[What]) -> usize {
+    what.iter()
+        .map(|w| match w {
+            What::Thermal | What::Cross => 1,
+            What::Backlash => BACKLASH_MODES.len() * BACKLASH_MODES.len(),
+            What::Quadrant => 1 + QUADRANT_EXTRA_STARTS as usize,
+        })
+        .sum()
+}
+
 fn search(
     job: &Job<'_>,
     shared: &Shared<'_>,
@@ -676,10 +767,12 @@ fn search(
     if job.what.contains(&What::Thermal) {
         cur = tune_thermal(&cur, job)?;
         cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+        shared.part_done();
     }
     if job.what.contains(&What::Cross) {
         cur.cross = measure::sag_tables(&cur, 9)?;
         cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+        shared.part_done();
     }
     if job.what.contains(&What::Backlash) {
         let starts = mode_pairs(&cur, axis_i)
@@ -701,7 +794,7 @@ fn search(
             base: p.clone(),
             x0: None,
         }];
-        starts.extend((0..3).map(|k| Start {
+        starts.extend((0..QUADRANT_EXTRA_STARTS).map(|k| Start {
             base: p.clone(),
             x0: Some(jitter(job.seed, k, n)),
         }));
@@ -827,7 +920,7 @@ pub fn grid(
     let t0 = std::time::Instant::now();
     let axis_i = check(job)?;
     let before = evaluate(job.preset, job.programs, &job.axis, &job.weights)?;
-    let shared = shared_for(job, before.objective, progress);
+    let shared = shared_for(job, before.objective, progress, 0);
     let mut cur = job.preset.clone();
     let mut cur_f = before.objective;
     if job.what.contains(&What::Backlash) {
@@ -875,12 +968,18 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
             axis: job.axis.clone(),
         });
     }
-    let shared = shared_for(job, before.objective, progress);
+    let shared = shared_for(job, before.objective, progress, search_parts(&job.what));
     let (cur, cur_f) = search(job, &shared, axis_i, before.objective)?;
     // Never worse than the start: the comparison is on the same figures.
     let kept_start = cur_f >= before.objective;
     let preset = if kept_start { job.preset.clone() } else { cur };
     let after = evaluate(&preset, job.programs, &job.axis, &job.weights)?;
+    let floor = evaluate(
+        &ideal_axis(job.preset, axis_i),
+        job.programs,
+        &job.axis,
+        &job.weights,
+    )?;
     let values = tuned_values(&preset, axis_i, job);
     let wall_s = t0.elapsed().as_secs_f64();
     let simulations = shared.evals.load(Ordering::Relaxed) + 1;
@@ -892,6 +991,7 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
         weights: job.weights,
         before,
         after,
+        floor,
         kept_start,
         simulations,
         simulations_per_s: simulations as f64 / wall_s.max(1e-9),
@@ -1150,7 +1250,7 @@ pub fn transfer(
     let outcome = tune(
         &job,
         &Progress {
-            report: &|_, _| {},
+            report: &|_| {},
             cancel: &cancel,
         },
     )?;

@@ -26,7 +26,7 @@ pub struct TuneResult {
 /// A tune on its worker thread.
 pub struct TuneJob {
     /// (evaluations, best objective so far).
-    pub progress: Arc<Mutex<(usize, f64)>>,
+    pub progress: Arc<Mutex<Option<tune::Status>>>,
     pub cancel: Arc<AtomicBool>,
     pub result: Arc<Mutex<Option<Result<TuneResult, String>>>>,
 }
@@ -101,7 +101,7 @@ impl Workbench {
         let axis = self.axis_name();
         let weights = self.tune.weights;
         let job = TuneJob {
-            progress: Arc::new(Mutex::new((0, f64::NAN))),
+            progress: Arc::new(Mutex::new(None)),
             cancel: Arc::new(AtomicBool::new(false)),
             result: Arc::new(Mutex::new(None)),
         };
@@ -109,9 +109,9 @@ impl Workbench {
             (job.progress.clone(), job.cancel.clone(), job.result.clone());
         self.tune.error = None;
         std::thread::spawn(move || {
-            let report = |n: usize, f: f64| {
+            let report = |st: tune::Status| {
                 if let Ok(mut p) = progress.lock() {
-                    *p = (n, f);
+                    *p = Some(st);
                 }
             };
             let job = Job {
@@ -251,8 +251,14 @@ fn settings_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
 fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
         if let Some(job) = &wb.tune.job {
-            let (n, f) = job.progress.lock().map(|p| *p).unwrap_or((0, f64::NAN));
-            ui.add(egui::Spinner::new());
+            let st = job.progress.lock().ok().and_then(|p| *p);
+            let share = st.and_then(|s| s.share_done()).unwrap_or(0.0);
+            ui.add(
+                egui::ProgressBar::new(share as f32)
+                    .desired_width(160.0)
+                    .show_percentage(),
+            );
+            let (n, f) = st.map_or((0, f64::NAN), |s| (s.simulations, s.best));
             ui.label(format!(
                 "{n} simulations, best objective {}",
                 if f.is_finite() {
@@ -302,35 +308,7 @@ fn result_ui(r: &TuneResult, ui: &mut egui::Ui) {
         fmt_num(o.simulations_per_s)
     ));
     ui.horizontal_top(|ui| {
-        egui::Grid::new("tune-reversals")
-            .striped(true)
-            .show(ui, |ui| {
-                for h in [
-                    "reversal",
-                    "t",
-                    "peak change before",
-                    "after",
-                    "settled change before",
-                    "after",
-                ] {
-                    ui.strong(h);
-                }
-                ui.end_row();
-                for (b, a) in o.before.reversals.iter().zip(&o.after.reversals) {
-                    ui.label(b.direction.arrow());
-                    ui.label(fmt_qty(b.t_s, "s"));
-                    ui.label(fmt_qty(mm_to_um(b.peak_err_mm), "um"));
-                    ui.label(fmt_qty(mm_to_um(a.peak_err_mm), "um"));
-                    ui.label(fmt_qty(mm_to_um(b.settled_err_mm), "um"));
-                    ui.label(fmt_qty(mm_to_um(a.settled_err_mm), "um"));
-                    ui.end_row();
-                }
-                ui.label("RMS error");
-                ui.label("");
-                ui.label(fmt_qty(o.before.rms_um, "um"));
-                ui.label(fmt_qty(o.after.rms_um, "um"));
-                ui.end_row();
-            });
+        reversal_table_ui(o, ui);
         egui::Grid::new("tune-values").striped(true).show(ui, |ui| {
             ui.strong("tuned value");
             ui.strong("");
@@ -383,4 +361,51 @@ fn result_ui(r: &TuneResult, ui: &mut egui::Ui) {
                 );
             });
     });
+}
+
+/// Peak and settled change per reversal before and after, next to the ideal axis's.
+fn reversal_table_ui(o: &Outcome, ui: &mut egui::Ui) {
+    egui::Grid::new("tune-reversals")
+        .striped(true)
+        .show(ui, |ui| {
+            for h in [
+                "reversal",
+                "t",
+                "peak change before",
+                "after",
+                "ideal axis (floor)",
+                "settled change before",
+                "after",
+            ] {
+                ui.strong(h);
+            }
+            ui.end_row();
+            for (i, (b, a)) in o
+                .before
+                .reversals
+                .iter()
+                .zip(&o.after.reversals)
+                .enumerate()
+            {
+                ui.label(b.direction.arrow());
+                ui.label(fmt_qty(b.t_s, "s"));
+                ui.label(fmt_qty(mm_to_um(b.peak_err_mm), "um"));
+                ui.label(fmt_qty(mm_to_um(a.peak_err_mm), "um"));
+                ui.label(
+                    o.floor
+                        .reversals
+                        .get(i)
+                        .map_or_else(|| "—".into(), |f| fmt_qty(mm_to_um(f.peak_err_mm), "um")),
+                );
+                ui.label(fmt_qty(mm_to_um(b.settled_err_mm), "um"));
+                ui.label(fmt_qty(mm_to_um(a.settled_err_mm), "um"));
+                ui.end_row();
+            }
+            ui.label("RMS error");
+            ui.label("");
+            ui.label(fmt_qty(o.before.rms_um, "um"));
+            ui.label(fmt_qty(o.after.rms_um, "um"));
+            ui.label(fmt_qty(o.floor.rms_um, "um"));
+            ui.end_row();
+        });
 }

@@ -89,10 +89,15 @@ pub fn run(a: Args) -> Result<()> {
         threads: 0,
     };
     let cancel = AtomicBool::new(false);
-    let report = |n: usize, f: f64| {
+    let report = |st: tune::Status| {
+        let share = st
+            .share_done()
+            .map(|d| format!(", {:.0} % of the search", 100.0 * d))
+            .unwrap_or_default();
         eprint!(
-            "\r  {n} simulations, best objective {}        ",
-            fmt_qty(f, "")
+            "\r  {} simulations, best objective {}{share}        ",
+            st.simulations,
+            fmt_qty(st.best, "")
         );
     };
     if let Some(n) = a.grid {
@@ -166,15 +171,27 @@ fn print_outcome(o: &tune::Outcome) {
         o.simulations_per_s
     );
     say!(
-        "  reversal                 peak change before -> after     settled change before -> after"
+        "  reversal                 peak change before -> after (ideal axis)     settled change before -> after"
     );
-    for (b, a) in o.before.reversals.iter().zip(&o.after.reversals) {
+    for (i, (b, a)) in o
+        .before
+        .reversals
+        .iter()
+        .zip(&o.after.reversals)
+        .enumerate()
+    {
+        let floor = o
+            .floor
+            .reversals
+            .get(i)
+            .map_or_else(|| "-".into(), |f| fmt_qty(mm_to_um(f.peak_err_mm), "um"));
         say!(
-            "  {} at t = {:>8.4} s   {:>10} -> {:<10}        {:>10} -> {:<10}",
+            "  {} at t = {:>8.4} s   {:>10} -> {:<10} ({:>10})        {:>10} -> {:<10}",
             b.direction.arrow(),
             b.t_s,
             fmt_qty(mm_to_um(b.peak_err_mm), "um"),
             fmt_qty(mm_to_um(a.peak_err_mm), "um"),
+            floor,
             fmt_qty(mm_to_um(b.settled_err_mm), "um"),
             fmt_qty(mm_to_um(a.settled_err_mm), "um"),
         );

@@ -242,7 +242,10 @@ impl Channel {
                 for (i, t) in target.iter_mut().enumerate() {
                     *t = self.q_prev[i] + (self.q_cur[i] - self.q_prev[i]) * f;
                 }
-                self.t1_phase = (self.t1_phase + 1) % self.n12;
+                self.t1_phase += 1;
+                if self.t1_phase == self.n12 {
+                    self.t1_phase = 0;
+                }
                 return Mode::Normal;
             }
         }
