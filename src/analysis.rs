@@ -29,6 +29,10 @@ pub struct Reversal {
     pub settled_err_mm: f64,
     /// Largest |cmd − pos| in the same window.
     pub peak_abs_err_mm: f64,
+    /// The same change at the last sample before the reversal: what the stop before it
+    /// already did (a table coasting across its play while the axis decelerates, say).
+    /// A compensation started by the command's reversal comes after it.
+    pub before_err_mm: f64,
 }
 
 /// Error figures of one axis over a whole trace.
@@ -132,6 +136,7 @@ pub fn summarize(trace: &Trace) -> Vec<AxisSummary> {
                         peak_err_mm: m_to_mm(peak),
                         settled_err_mm: m_to_mm(window().last().map_or(0.0, |k| err[k] - e0)),
                         peak_abs_err_mm: m_to_mm(peak_abs),
+                        before_err_mm: m_to_mm(err[i.saturating_sub(1)] - e0),
                     }
                 })
                 .collect();

@@ -397,13 +397,8 @@ pub fn evaluate(
     let sums = analysis::summarize(&m.trace);
     let s = sums.into_iter().find(|s| s.axis == axis);
     let (reversals, rms_um) = s.map_or((vec![], 0.0), |s| (s.reversals, mm_to_um(s.rms_err_mm)));
-    let n = reversals.len().max(1) as f64;
     let peak = mean_peak_change_um(&reversals);
-    let settled: f64 = reversals
-        .iter()
-        .map(|r| mm_to_um(r.settled_err_mm).abs())
-        .sum::<f64>()
-        / n;
+    let settled = mean_um(&reversals, |r| r.settled_err_mm.abs());
     let objective = w.peak * peak + w.settled * settled + w.rms * rms_um;
     Ok(Figures {
         reversals,
@@ -1112,12 +1107,20 @@ pub fn corrections(p: &Preset, axis: &str, cmd_m: &[f64], t3_s: f64) -> Correcti
 /// The mean peak error change over `reversals`, µm: the reversal glitch the objective and
 /// the transfer check read (0 without reversals).
 pub fn mean_peak_change_um(reversals: &[Reversal]) -> f64 {
+    mean_um(reversals, |r| r.peak_err_mm)
+}
+
+/// The mean |error change| already there at the last sample before each reversal, µm
+/// ([`Reversal::before_err_mm`]): the part of the glitch a compensation started by the
+/// reversal cannot reach.
+pub fn mean_change_before_um(reversals: &[Reversal]) -> f64 {
+    mean_um(reversals, |r| r.before_err_mm.abs())
+}
+
+/// The mean of one figure (mm) over `reversals`, µm (0 without reversals).
+fn mean_um(reversals: &[Reversal], mm: fn(&Reversal) -> f64) -> f64 {
     let n = reversals.len().max(1) as f64;
-    reversals
-        .iter()
-        .map(|r| mm_to_um(r.peak_err_mm))
-        .sum::<f64>()
-        / n
+    reversals.iter().map(|r| mm_to_um(mm(r))).sum::<f64>() / n
 }
 
 /// The mean peak error change at the reversals of a record, µm (the glitch).

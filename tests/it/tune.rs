@@ -290,3 +290,41 @@ fn a_tune_on_a_diagnosed_model_transfers_to_the_independent_machine() {
     let ok = shares.iter().filter(|s| **s >= 0.5).count();
     assert!(ok >= 2, "shares of the predicted cut: {shares:?}");
 }
+
+/// Why the tuner leaves most of default.ron's glitch: the table coasts across its play
+/// while the axis decelerates into the reversal, so the error has changed by most of the
+/// play's width before the command reverses. The ideal axis (no play, no friction) shows
+/// only the servo's own change there.
+#[test]
+fn the_glitch_before_the_reversal_is_the_play_the_table_coasted_across() {
+    let (p, progs) = preset("default.ron", &[]);
+    let (off, _) = preset("default.ron", &[("axes.x.backlash.enabled", "false")]);
+    let width_um = p.axes[0].lost_motion.width_um;
+    let w = Weights::default();
+    let before_um = |p: &Preset| -> Vec<f64> {
+        let f = tune::evaluate(p, &progs, "x", &w).expect("runs");
+        f.reversals
+            .iter()
+            .map(|r| mm_to_um(r.before_err_mm).abs())
+            .collect()
+    };
+    let (unc, shipped, ideal) = (
+        before_um(&off),
+        before_um(&p),
+        before_um(&tune::ideal_axis(&p, 0)),
+    );
+    assert!(!unc.is_empty() && unc.len() == ideal.len() && unc.len() == shipped.len());
+    for i in 0..unc.len() {
+        // The play adds most of its width, and no more than it.
+        let by_play = unc[i] - ideal[i];
+        assert!(
+            by_play > 0.5 * width_um && by_play < width_um + 0.5,
+            "reversal {i}: {} µm with play, {} µm ideal, play {width_um} µm",
+            unc[i],
+            ideal[i]
+        );
+        // The shipped compensation (Q near the play) starts at the reversal: the change is
+        // still there before it.
+        assert!(shipped[i] - ideal[i] > 0.5 * width_um, "reversal {i}");
+    }
+}
