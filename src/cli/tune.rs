@@ -202,7 +202,7 @@ fn print_outcome(o: &tune::Outcome) {
         fmt_qty(o.after.rms_um, "um")
     );
     say!(
-        "  of the tuned peak change, {} (mean) is there at the last sample before the reversal (the stop before it), out of reach of a compensation the reversal starts",
+        "  of the tuned peak change, {} (mean) is there at the last sample before the reversal (the deceleration into it), out of reach of a compensation the reversal starts",
         fmt_qty(tune::mean_change_before_um(&o.after.reversals), "um")
     );
     say!("  tuned values:");

@@ -106,6 +106,7 @@ impl Backlash {
 
     /// One distribution cycle with commanded travel `d_m` and cycle time `period_s`.
     /// Returns this cycle's output (m); the accumulated correction is `acc_m`.
+    #[inline]
     pub fn cycle(&mut self, d_m: f64, period_s: f64) -> f64 {
         let s: i8 = if d_m > MOVE_EPS_M {
             1

@@ -228,6 +228,7 @@ impl Channel {
     /// Produces the next T2 worth of uncompensated commands. In normal mode `target[i]` is
     /// the position at the end of this T2 period; in direct mode `batch[i*n23 + j]` holds the
     /// n23 T3 samples. Returns the mode the data was produced in.
+    #[inline]
     pub fn tick_t2(&mut self, target: &mut [f64], batch: &mut [f64]) -> Mode {
         if let Some(m) = self.switch_next.take() {
             self.mode = m;
