@@ -272,13 +272,24 @@ const LABEL_PX: f64 = 22.0;
 const MIN_LABEL_PX: f64 = 14.0;
 
 /// The smallest 1-2-5 step at least `x`.
-fn nice_step_at_least(x: f64) -> f64 {
+pub fn nice_step_at_least(x: f64) -> f64 {
     let p = 10f64.powf(x.log10().floor());
     [1.0, 2.0, 5.0, 10.0]
         .iter()
         .map(|m| m * p)
         .find(|s| *s >= x * (1.0 - 1e-9))
         .unwrap_or(10.0 * p)
+}
+
+/// Grid steps for an x axis: about four labelled 1-2-5 steps across the plot (x labels
+/// are wide, so [`nice_grid`]'s spacing, set by the text's height, is too close for them).
+pub fn x_grid(input: GridInput) -> Vec<GridMark> {
+    let (lo, hi) = input.bounds;
+    if !(lo.is_finite() && hi.is_finite()) || hi <= lo {
+        return vec![];
+    }
+    let major = nice_step_at_least((hi - lo) / 5.0);
+    egui_plot::uniform_grid_spacer(move |_| [major / 5.0, major, major * 10.0])(input)
 }
 
 /// Labelled grid lines at the smallest 1-2-5 step [`LABEL_PX`] apart, and unlabelled ones

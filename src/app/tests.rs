@@ -935,6 +935,10 @@ fn the_tune_panel_runs_applies_and_undoes() {
         h.query_by_label("peak change before").is_some(),
         "the table"
     );
+    assert!(
+        h.query_by_label("ideal axis (floor)").is_some(),
+        "the floor next to before and after"
+    );
     h.get_by_label("Apply tuned values").click();
     h.run();
     {
@@ -953,9 +957,9 @@ fn the_tune_panel_runs_applies_and_undoes() {
     // A cancelled tune changes nothing and says so.
     h.get_by_label("Run tune").click();
     h.step();
-    if let Some(j) = &h.state().tune.job {
-        j.cancel.store(true, std::sync::atomic::Ordering::Relaxed);
-    }
+    h.step();
+    h.get_by_label("Cancel tune").click();
+    h.step();
     h.state_mut().wait_tune();
     h.run();
     assert_eq!(h.state().preset, before);

@@ -16,6 +16,7 @@ use axisbench::{Machine, Preset};
 
 use super::Workbench;
 use super::diagnose::Basis;
+use super::scope::{nice_grid, x_grid};
 
 /// A finished tune, with the error of both runs for the overlay: (t s, before µm, after µm).
 pub struct TuneResult {
@@ -327,15 +328,23 @@ fn result_ui(r: &TuneResult, ui: &mut egui::Ui) {
             .height(h)
             .width(w)
             .x_axis_label("simulations")
-            .y_axis_label("objective")
+            .y_axis_label("best objective [µm]")
+            .x_grid_spacer(x_grid)
+            .y_grid_spacer(nice_grid)
             .show(ui, |pu| {
-                let pts: Vec<[f64; 2]> = o.history.iter().map(|(n, f)| [*n as f64, *f]).collect();
-                pu.line(Line::new("best objective", PlotPoints::from(pts)));
+                // A staircase has vertical steps: drawn as a min/max band (egui_plot's
+                // default for dense lines) each step would become a wedge.
+                pu.line(
+                    Line::new("best objective", PlotPoints::from(best_steps(o)))
+                        .color(egui::Color32::from_rgb(0, 200, 210))
+                        .allow_band(false),
+                );
             });
         let step = (r.err_um.len() / 4000).max(1);
         Plot::new("tune-error")
             .height(h)
             .legend(Legend::default())
+            .y_grid_spacer(nice_grid)
             .x_axis_label("t [s]")
             .y_axis_label("error cmd − pos [µm]")
             .show(ui, |pu| {
@@ -408,4 +417,27 @@ fn reversal_table_ui(o: &Outcome, ui: &mut egui::Ui) {
             ui.label(fmt_qty(o.floor.rms_um, "um"));
             ui.end_row();
         });
+}
+
+/// The best objective as a staircase over the simulation count: it holds until a better
+/// point is found. The threads record their improvements in the order they take the lock,
+/// so the points are sorted by count first.
+fn best_steps(o: &Outcome) -> Vec<[f64; 2]> {
+    let mut h = o.history.clone();
+    h.sort_by_key(|(n, _)| *n);
+    let mut pts: Vec<[f64; 2]> = Vec::with_capacity(2 * h.len() + 1);
+    let mut best = f64::INFINITY;
+    for (n, f) in h {
+        if f < best {
+            if let Some(&[_, prev]) = pts.last() {
+                pts.push([n as f64, prev]);
+            }
+            pts.push([n as f64, f]);
+            best = f;
+        }
+    }
+    if let Some(&[_, last]) = pts.last() {
+        pts.push([o.simulations as f64, last]);
+    }
+    pts
 }
