@@ -22,7 +22,7 @@ use crate::machine::{Machine, MachineError};
 use crate::measure;
 use crate::preset::comp::{Injection, OutputMode};
 use crate::preset::{AxisParams, Preset};
-use crate::units::mm_to_um;
+use crate::units::{fmt_qty, mm_to_um};
 
 /// What a tune may change.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -274,6 +274,59 @@ pub struct Outcome {
     pub history: Vec<(usize, f64)>,
     /// The tuned parameters: (preset path, value).
     pub values: Vec<(String, f64)>,
+}
+
+/// The before/after table of a tune, one row of text cells per reversal and one for the
+/// RMS error, in [`Outcome::TABLE_HEADER`]'s columns: what the CLI prints and the Tune tab
+/// shows.
+impl Outcome {
+    /// Column heads of [`Outcome::table`].
+    pub const TABLE_HEADER: [&'static str; 7] = [
+        "reversal",
+        "t",
+        "peak change before",
+        "after",
+        "ideal axis (floor)",
+        "settled change before",
+        "after",
+    ];
+
+    /// The rows of the table, values with their units ("—" where the ideal axis has no such
+    /// reversal); the last row is the RMS position error.
+    pub fn table(&self) -> Vec<[String; 7]> {
+        let um = |mm: f64| fmt_qty(mm_to_um(mm), "um");
+        let mut rows: Vec<[String; 7]> = self
+            .before
+            .reversals
+            .iter()
+            .zip(&self.after.reversals)
+            .enumerate()
+            .map(|(i, (b, a))| {
+                [
+                    b.direction.arrow().to_owned(),
+                    fmt_qty(b.t_s, "s"),
+                    um(b.peak_err_mm),
+                    um(a.peak_err_mm),
+                    self.floor
+                        .reversals
+                        .get(i)
+                        .map_or_else(|| "—".to_owned(), |f| um(f.peak_err_mm)),
+                    um(b.settled_err_mm),
+                    um(a.settled_err_mm),
+                ]
+            })
+            .collect();
+        rows.push([
+            "RMS error".to_owned(),
+            String::new(),
+            fmt_qty(self.before.rms_um, "um"),
+            fmt_qty(self.after.rms_um, "um"),
+            fmt_qty(self.floor.rms_um, "um"),
+            String::new(),
+            String::new(),
+        ]);
+        rows
+    }
 }
 
 /// One searched number: its preset path below the axis, its range, whether it is a whole
@@ -579,7 +632,7 @@ fn stage(
     shared: &Shared<'_>,
     axis_i: usize,
     starts: Vec<Start>,
-    dims_of: fn(&AxisParams) -> Vec<Dim>,
+    dims_of: DimsOf,
 ) -> Result<Option<(Preset, f64)>, TuneError> {
     let threads = job.thread_count();
     let next = AtomicUsize::new(0);
@@ -733,9 +786,6 @@ fn check(job: &Job<'_>) -> Result<usize, TuneError> {
     Ok(axis_i)
 }
 
-/// The measured parts, then the backlash starts (every pair of output modes), then the
-/// quadrant starts (the values given and seeded points); each stage keeps its best only
-/// when it beats what came before. Returns the preset and its objective.
 /// Seeded starts of the quadrant stage, besides the values given.
 const QUADRANT_EXTRA_STARTS: u64 = 3;
 
@@ -750,57 +800,78 @@ fn search_parts(what: &[What]) -> usize {
         .sum()
 }
 
+/// A searched stage's numbers, read from an axis.
+type DimsOf = fn(&AxisParams) -> Vec<Dim>;
+
+/// The searched stages in order, for the search and the grid check alike: the backlash on
+/// every pair of output modes, then the quadrant (adaptive on) on the best so far. `run`
+/// takes a stage's bases, its numbers and whether seeded starts belong to it, and returns
+/// the stage's best; that is kept only when it beats `cur`.
+fn searched_stages(
+    job: &Job<'_>,
+    axis_i: usize,
+    cur: &mut (Preset, f64),
+    mut run: impl FnMut(Vec<Preset>, DimsOf, bool) -> Result<Option<(Preset, f64)>, TuneError>,
+) -> Result<(), TuneError> {
+    if job.what.contains(&What::Backlash) {
+        keep_better(cur, run(mode_pairs(&cur.0, axis_i), backlash_dims, false)?);
+    }
+    if job.what.contains(&What::Quadrant) {
+        let mut p = cur.0.clone();
+        p.axes[axis_i].quadrant.adaptive = true;
+        keep_better(cur, run(vec![p], quadrant_dims, true)?);
+    }
+    Ok(())
+}
+
+/// `best` replaces `cur` when its objective is lower.
+fn keep_better(cur: &mut (Preset, f64), best: Option<(Preset, f64)>) {
+    if let Some(b) = best
+        && b.1 < cur.1
+    {
+        *cur = b;
+    }
+}
+
+/// The measured parts, then the searched stages ([`searched_stages`]) from Nelder–Mead
+/// starts: each base as given, plus seeded points where the stage has them. Returns the
+/// preset and its objective.
 fn search(
     job: &Job<'_>,
     shared: &Shared<'_>,
     axis_i: usize,
     start_f: f64,
 ) -> Result<(Preset, f64), TuneError> {
-    let mut cur = job.preset.clone();
-    let mut cur_f = start_f;
+    let mut cur = (job.preset.clone(), start_f);
     // Measured parts first: they change the machine the searched parts act on.
     if job.what.contains(&What::Thermal) {
-        cur = tune_thermal(&cur, job)?;
-        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+        cur.0 = tune_thermal(&cur.0, job)?;
+        cur.1 = evaluate(&cur.0, job.programs, &job.axis, &job.weights)?.objective;
         shared.part_done();
     }
     if job.what.contains(&What::Cross) {
-        cur.cross = measure::sag_tables(&cur, 9)?;
-        cur_f = evaluate(&cur, job.programs, &job.axis, &job.weights)?.objective;
+        cur.0.cross = measure::sag_tables(&cur.0, 9)?;
+        cur.1 = evaluate(&cur.0, job.programs, &job.axis, &job.weights)?.objective;
         shared.part_done();
     }
-    if job.what.contains(&What::Backlash) {
-        let starts = mode_pairs(&cur, axis_i)
-            .into_iter()
-            .map(|base| Start { base, x0: None })
+    searched_stages(job, axis_i, &mut cur, |bases, dims_of, seeded| {
+        let mut starts: Vec<Start> = bases
+            .iter()
+            .map(|base| Start {
+                base: base.clone(),
+                x0: None,
+            })
             .collect();
-        if let Some((p, f)) = stage(job, shared, axis_i, starts, backlash_dims)?
-            && f < cur_f
-        {
-            cur = p;
-            cur_f = f;
+        if seeded && let Some(base) = bases.first() {
+            let n = base.axes.get(axis_i).map_or(0, |a| dims_of(a).len());
+            starts.extend((0..QUADRANT_EXTRA_STARTS).map(|k| Start {
+                base: base.clone(),
+                x0: Some(jitter(job.seed, k, n)),
+            }));
         }
-    }
-    if job.what.contains(&What::Quadrant) {
-        let mut p = cur.clone();
-        p.axes[axis_i].quadrant.adaptive = true;
-        let n = quadrant_dims(&p.axes[axis_i]).len();
-        let mut starts = vec![Start {
-            base: p.clone(),
-            x0: None,
-        }];
-        starts.extend((0..QUADRANT_EXTRA_STARTS).map(|k| Start {
-            base: p.clone(),
-            x0: Some(jitter(job.seed, k, n)),
-        }));
-        if let Some((p, f)) = stage(job, shared, axis_i, starts, quadrant_dims)?
-            && f < cur_f
-        {
-            cur = p;
-            cur_f = f;
-        }
-    }
-    Ok((cur, cur_f))
+        stage(job, shared, axis_i, starts, dims_of)
+    })?;
+    Ok(cur)
 }
 
 /// The best point of a full grid over the same numbers a stage searches: `n` values per
@@ -810,7 +881,7 @@ fn grid_stage(
     shared: &Shared<'_>,
     axis_i: usize,
     bases: &[Preset],
-    dims_of: fn(&AxisParams) -> Vec<Dim>,
+    dims_of: DimsOf,
     n: usize,
 ) -> Option<(Preset, f64)> {
     let n = n.max(2);
@@ -916,32 +987,16 @@ pub fn grid(
     let axis_i = check(job)?;
     let before = evaluate(job.preset, job.programs, &job.axis, &job.weights)?;
     let shared = shared_for(job, before.objective, progress, 0);
-    let mut cur = job.preset.clone();
-    let mut cur_f = before.objective;
-    if job.what.contains(&What::Backlash) {
-        let bases = mode_pairs(&cur, axis_i);
-        if let Some((p, f)) = grid_stage(job, &shared, axis_i, &bases, backlash_dims, per_dim)
-            && f < cur_f
-        {
-            cur = p;
-            cur_f = f;
-        }
-    }
-    if job.what.contains(&What::Quadrant) {
-        let mut p = cur.clone();
-        p.axes[axis_i].quadrant.adaptive = true;
-        if let Some((_, f)) = grid_stage(job, &shared, axis_i, &[p], quadrant_dims, per_dim)
-            && f < cur_f
-        {
-            cur_f = f;
-        }
-    }
+    let mut cur = (job.preset.clone(), before.objective);
+    searched_stages(job, axis_i, &mut cur, |bases, dims_of, _| {
+        Ok(grid_stage(job, &shared, axis_i, &bases, dims_of, per_dim))
+    })?;
     if progress.cancel.load(Ordering::Relaxed) {
         return Err(TuneError::Cancelled);
     }
     Ok(GridOutcome {
         start: before.objective,
-        best: cur_f,
+        best: cur.1,
         per_dim,
         simulations: shared.evals.load(Ordering::Relaxed),
         wall_s: t0.elapsed().as_secs_f64(),

@@ -3,20 +3,12 @@
 //! residual lies, which effect explains it, and apply the fitted effect to the preset.
 
 use super::Workbench;
+use super::worker::Computed;
 use axisbench::diagnose::{self, Options, Progress, Report, regimes::Regime, replay::Record};
 use axisbench::units::{fmt_num, fmt_qty};
 use eframe::egui;
 use egui_plot::{Bar, BarChart, Legend, Line, Plot, PlotPoints, Points, Polygon};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
-
-/// A diagnosis running on its worker thread.
-pub struct DiagJob {
-    pub progress: Arc<Mutex<(f64, String)>>,
-    pub cancel: Arc<AtomicBool>,
-    pub result: Arc<Mutex<Option<Result<Report, String>>>>,
-}
 
 /// What a result was computed on: the scenario or file and the preset with every edit, so
 /// it is never applied to another machine.
@@ -78,15 +70,8 @@ pub struct DiagState {
     pub trace_path: String,
     pub validate_path: String,
     pub holdout: f64,
-    pub job: Option<DiagJob>,
-    /// The job's basis while it runs.
-    pub job_basis: Option<Basis>,
-    /// The last report, and what it was computed on.
-    pub report: Option<Report>,
-    pub basis: Option<Basis>,
-    /// Whether the report on screen was applied.
-    pub applied: bool,
-    pub error: Option<String>,
+    /// The diagnosis: progress (share done, what it does), the report and its basis.
+    pub run: Computed<(f64, String), Report>,
 }
 
 impl DiagState {
@@ -113,16 +98,11 @@ impl Workbench {
         let main_path = self.diag.trace_path.trim().to_owned();
         let val_path = self.diag.validate_path.trim().to_owned();
         let holdout = self.diag.holdout;
-        let job = DiagJob {
-            progress: Arc::new(Mutex::new((0.0, "reading the records".into()))),
-            cancel: Arc::new(AtomicBool::new(false)),
-            result: Arc::new(Mutex::new(None)),
-        };
-        let (progress, cancel, result) =
-            (job.progress.clone(), job.cancel.clone(), job.result.clone());
-        self.diag.error = None;
-        std::thread::spawn(move || {
-            let run = || -> Result<Report, String> {
+        let basis = Basis::of(self);
+        self.diag.run.start(
+            basis,
+            (0.0, "reading the records".into()),
+            move |progress, cancel| {
                 if main_path.is_empty() {
                     return Err("choose a measured record first".into());
                 }
@@ -139,7 +119,7 @@ impl Workbench {
                 };
                 let prog = Progress {
                     report: &report_fn,
-                    cancel: &cancel,
+                    cancel,
                 };
                 let opts = Options {
                     holdout,
@@ -147,54 +127,25 @@ impl Workbench {
                 };
                 diagnose::diagnose(&preset, &main, val.as_ref(), &opts, &prog)
                     .map_err(|e| e.to_string())
-            };
-            let r = run();
-            if let Ok(mut slot) = result.lock() {
-                *slot = Some(r);
-            }
-        });
-        self.diag.job = Some(job);
-        self.diag.job_basis = Some(Basis::of(self));
+            },
+        );
     }
 
     /// Takes a finished job's result.
     fn poll_diagnosis(&mut self) {
-        let done = self
-            .diag
-            .job
-            .as_ref()
-            .and_then(|j| j.result.lock().ok().and_then(|mut r| r.take()));
-        if let Some(r) = done {
-            self.diag.job = None;
-            match r {
-                Ok(rep) => {
-                    self.status = format!("diagnosis: {}", rep.summary);
-                    self.diag.report = Some(rep);
-                    self.diag.basis = self.diag.job_basis.take();
-                    self.diag.applied = false;
-                }
-                Err(e) => self.diag.error = Some(e),
-            }
-        }
-    }
-
-    /// Waits for a running diagnosis (tests).
-    #[cfg(test)]
-    pub fn wait_diagnosis(&mut self) {
-        while self.diag.job.is_some() {
-            self.poll_diagnosis();
-            std::thread::sleep(std::time::Duration::from_millis(10));
+        if let Some(rep) = self.diag.run.poll() {
+            self.status = format!("diagnosis: {}", rep.summary);
         }
     }
 
     /// Why the diagnosis on screen cannot be applied now (no result, no effect, or
     /// computed on another preset or before an edit); None when Apply may go ahead.
     pub fn diagnosis_not_applicable(&self) -> Option<String> {
-        let rep = self.diag.report.as_ref()?;
+        let rep = self.diag.run.result.as_ref()?;
         if rep.selected.is_empty() || rep.fitted.is_none() {
             return Some("no effect was named: nothing to apply".into());
         }
-        Basis::why_not(self.diag.basis.as_ref(), self.diag.applied, self)
+        self.diag.run.why_not(self)
     }
 
     /// "Apply to model": the preset takes the fitted effects (only onto the preset they
@@ -204,18 +155,19 @@ impl Workbench {
             self.status = format!("not applied: {why}");
             return;
         }
-        let Some(fitted) = self.diag.report.as_ref().and_then(|r| r.fitted.clone()) else {
+        let Some(fitted) = self.diag.run.result.as_ref().and_then(|r| r.fitted.clone()) else {
             return;
         };
         let added = self
             .diag
-            .report
+            .run
+            .result
             .as_ref()
             .map(|r| r.selected.join(" + "))
             .unwrap_or_default();
         let n = self.preset.diff(&fitted).len();
         self.replace_preset(fitted, format!("diagnosis: {added}"));
-        self.diag.applied = true;
+        self.diag.run.applied = true;
         self.status = format!(
             "applied to the model: {added}, {n} fields changed (Undo restores them; save the preset to keep it)"
         );
@@ -247,10 +199,10 @@ pub fn diagnose_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     let full_w = ui.available_width();
     records_ui(wb, ui);
     run_row_ui(wb, ui);
-    if let Some(e) = &wb.diag.error {
+    if let Some(e) = &wb.diag.run.error {
         ui.colored_label(egui::Color32::from_rgb(200, 40, 40), e);
     }
-    let Some(rep) = &wb.diag.report else {
+    let Some(rep) = &wb.diag.run.result else {
         ui.label("Replays the measured command through this preset and ranks the unmodelled effects that explain the residual.");
         return;
     };
@@ -303,7 +255,7 @@ fn records_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
 /// Run / progress / cancel, and "Apply to model".
 fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
-        if let Some(job) = &wb.diag.job {
+        if let Some(job) = &wb.diag.run.job {
             let (f, what) = job
                 .progress
                 .lock()
@@ -315,7 +267,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                     .text(format!("{:.0} % {what}", f * 100.0)),
             );
             if ui.button("Cancel").clicked() {
-                job.cancel.store(true, Ordering::Relaxed);
+                wb.diag.run.cancel();
             }
             ui.ctx().request_repaint();
         } else if ui.button("Run diagnosis").clicked() {
@@ -324,7 +276,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         let why_not = wb.diagnosis_not_applicable();
         let r = ui
             .add_enabled(
-                wb.diag.report.is_some() && why_not.is_none(),
+                wb.diag.run.result.is_some() && why_not.is_none(),
                 egui::Button::new("Apply to model"),
             )
             .on_hover_text("Add the named effects with their fitted parameters to the preset");
@@ -333,7 +285,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         }
         super::undo_apply_ui(wb, ui);
     });
-    if wb.diag.report.is_some() {
+    if wb.diag.run.result.is_some() {
         match wb.diagnosis_not_applicable() {
             Some(why) => super::apply_off_ui(ui, &why),
             None => apply_diff_ui(wb, ui),
@@ -343,7 +295,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
 
 /// What Apply will change, field by field.
 fn apply_diff_ui(wb: &Workbench, ui: &mut egui::Ui) {
-    let Some(fitted) = wb.diag.report.as_ref().and_then(|r| r.fitted.as_ref()) else {
+    let Some(fitted) = wb.diag.run.result.as_ref().and_then(|r| r.fitted.as_ref()) else {
         return;
     };
     let diff = wb.preset.diff(fitted);

@@ -13,6 +13,7 @@ mod session;
 #[cfg(test)]
 mod tests;
 mod tune;
+mod worker;
 
 use eframe::egui;
 use std::collections::BTreeMap;
@@ -340,8 +341,8 @@ impl Workbench {
         };
         self.preset = old;
         self.preset_replaced();
-        self.diag.applied = false;
-        self.tune.applied = false;
+        self.diag.run.applied = false;
+        self.tune.run.applied = false;
         self.status = format!("undone: {what}");
     }
 

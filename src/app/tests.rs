@@ -296,13 +296,13 @@ fn diagnose_view_runs_and_applies_the_fitted_effect() {
     h.get_by_label("Run diagnosis").click();
     // The progress bar repaints while the job runs, so step rather than settle.
     h.step();
-    assert!(h.state().diag.job.is_some(), "the job started");
-    h.state_mut().wait_diagnosis();
+    assert!(h.state().diag.run.job.is_some(), "the job started");
+    h.state().diag.run.wait();
     h.run();
     {
         let wb = h.state();
-        assert!(wb.diag.error.is_none(), "{:?}", wb.diag.error);
-        let rep = wb.diag.report.as_ref().expect("a report");
+        assert!(wb.diag.run.error.is_none(), "{:?}", wb.diag.run.error);
+        let rep = wb.diag.run.result.as_ref().expect("a report");
         assert_eq!(rep.verdict, "coulomb_friction");
         assert_eq!(wb.preset.axes[0].friction.coulomb_n, 0.0, "not applied yet");
     }
@@ -319,7 +319,7 @@ fn apply_belongs_to_its_preset(h: &mut Harness<'static, Workbench>) {
     );
     let diff = {
         let wb = h.state();
-        let fitted = wb.diag.report.as_ref().and_then(|r| r.fitted.clone());
+        let fitted = wb.diag.run.result.as_ref().and_then(|r| r.fitted.clone());
         wb.preset.diff(&fitted.expect("a fitted preset"))
     };
     assert!(
@@ -920,13 +920,13 @@ fn the_tune_panel_runs_applies_and_undoes() {
     let before = h.state().preset.clone();
     h.get_by_label("Run tune").click();
     h.step();
-    assert!(h.state().tune.job.is_some(), "the tune started");
-    h.state_mut().wait_tune();
+    assert!(h.state().tune.run.job.is_some(), "the tune started");
+    h.state().tune.run.wait();
     h.run();
     {
         let wb = h.state();
-        assert!(wb.tune.error.is_none(), "{:?}", wb.tune.error);
-        let r = wb.tune.result.as_ref().expect("a result");
+        assert!(wb.tune.run.error.is_none(), "{:?}", wb.tune.run.error);
+        let r = wb.tune.run.result.as_ref().expect("a result");
         assert!(r.outcome.after.objective <= r.outcome.before.objective);
         assert!(!r.err_um.is_empty(), "the error overlay has both runs");
         assert_eq!(wb.preset, before, "nothing applied yet");
@@ -943,7 +943,7 @@ fn the_tune_panel_runs_applies_and_undoes() {
     h.run();
     {
         let wb = h.state();
-        let tuned = &wb.tune.result.as_ref().expect("result").outcome.preset;
+        let tuned = &wb.tune.run.result.as_ref().expect("result").outcome.preset;
         assert_eq!(&wb.preset, tuned, "the tuned values are in force");
         assert_eq!(
             wb.live.lock().machine.preset.axes[0].backlash.q_um,
@@ -960,16 +960,17 @@ fn the_tune_panel_runs_applies_and_undoes() {
     h.step();
     h.get_by_label("Cancel tune").click();
     h.step();
-    h.state_mut().wait_tune();
+    h.state().tune.run.wait();
     h.run();
     assert_eq!(h.state().preset, before);
     let wb = h.state();
     assert!(
         wb.tune
+            .run
             .error
             .as_deref()
             .is_some_and(|e| e.contains("cancelled")),
         "{:?}",
-        wb.tune.error
+        wb.tune.run.error
     );
 }

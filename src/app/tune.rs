@@ -3,20 +3,18 @@
 //! the before/after table per reversal, the error before and after overlaid, and Apply
 //! (one Undo away) onto the preset the tune ran on only.
 
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
-
 use eframe::egui;
 use egui_plot::{Legend, Line, Plot, PlotPoints};
 
 use axisbench::trace::AxisSignal;
 use axisbench::tune::{self, Job, Outcome, Progress, Weights, What};
-use axisbench::units::{fmt_num, fmt_qty, m_to_um, mm_to_um};
+use axisbench::units::{fmt_num, fmt_qty, m_to_um};
 use axisbench::{Machine, Preset};
 
 use super::Workbench;
 use super::diagnose::Basis;
 use super::scope::{nice_grid, x_grid};
+use super::worker::Computed;
 
 /// A finished tune, with the error of both runs for the overlay: (t s, before µm, after µm).
 pub struct TuneResult {
@@ -24,24 +22,12 @@ pub struct TuneResult {
     pub err_um: Vec<[f64; 3]>,
 }
 
-/// A tune on its worker thread.
-pub struct TuneJob {
-    /// (evaluations, best objective so far).
-    pub progress: Arc<Mutex<Option<tune::Status>>>,
-    pub cancel: Arc<AtomicBool>,
-    pub result: Arc<Mutex<Option<Result<TuneResult, String>>>>,
-}
-
 pub struct TuneState {
     pub backlash: bool,
     pub quadrant: bool,
     pub weights: Weights,
-    pub job: Option<TuneJob>,
-    job_basis: Option<Basis>,
-    pub result: Option<TuneResult>,
-    pub basis: Option<Basis>,
-    pub applied: bool,
-    pub error: Option<String>,
+    /// The tune: progress, the result and its basis.
+    pub run: Computed<Option<tune::Status>, TuneResult>,
 }
 
 impl Default for TuneState {
@@ -50,12 +36,7 @@ impl Default for TuneState {
             backlash: true,
             quadrant: true,
             weights: Weights::default(),
-            job: None,
-            job_basis: None,
-            result: None,
-            basis: None,
-            applied: false,
-            error: None,
+            run: Computed::default(),
         }
     }
 }
@@ -94,22 +75,15 @@ impl Workbench {
     pub fn start_tune(&mut self) {
         let what = self.tune_what();
         if what.is_empty() {
-            self.tune.error = Some("tick at least one of backlash, quadrant".into());
+            self.tune.run.error = Some("tick at least one of backlash, quadrant".into());
             return;
         }
         let preset = self.preset.clone();
         let programs = self.programs.clone();
         let axis = self.axis_name();
         let weights = self.tune.weights;
-        let job = TuneJob {
-            progress: Arc::new(Mutex::new(None)),
-            cancel: Arc::new(AtomicBool::new(false)),
-            result: Arc::new(Mutex::new(None)),
-        };
-        let (progress, cancel, result) =
-            (job.progress.clone(), job.cancel.clone(), job.result.clone());
-        self.tune.error = None;
-        std::thread::spawn(move || {
+        let basis = Basis::of(self);
+        self.tune.run.start(basis, None, move |progress, cancel| {
             let report = |st: tune::Status| {
                 if let Ok(mut p) = progress.lock() {
                     *p = Some(st);
@@ -125,74 +99,44 @@ impl Workbench {
                 max_iters: 80,
                 threads: 0,
             };
-            let r = tune::tune(
+            let outcome = tune::tune(
                 &job,
                 &Progress {
                     report: &report,
-                    cancel: &cancel,
+                    cancel,
                 },
             )
-            .map(|outcome| {
-                let (t, before) = err_series(&preset, &programs, &axis);
-                let (_, after) = err_series(&outcome.preset, &programs, &axis);
-                let err_um = t
-                    .iter()
-                    .zip(before.iter().zip(&after))
-                    .map(|(t, (b, a))| [*t, *b, *a])
-                    .collect();
-                TuneResult { outcome, err_um }
-            })
-            .map_err(|e| e.to_string());
-            if let Ok(mut slot) = result.lock() {
-                *slot = Some(r);
-            }
+            .map_err(|e| e.to_string())?;
+            let (t, before) = err_series(&preset, &programs, &axis);
+            let (_, after) = err_series(&outcome.preset, &programs, &axis);
+            let err_um = t
+                .iter()
+                .zip(before.iter().zip(&after))
+                .map(|(t, (b, a))| [*t, *b, *a])
+                .collect();
+            Ok(TuneResult { outcome, err_um })
         });
-        self.tune.job = Some(job);
-        self.tune.job_basis = Some(Basis::of(self));
     }
 
     /// Takes a finished tune's result.
     fn poll_tune(&mut self) {
-        let done = self
-            .tune
-            .job
-            .as_ref()
-            .and_then(|j| j.result.lock().ok().and_then(|mut r| r.take()));
-        if let Some(r) = done {
-            self.tune.job = None;
-            match r {
-                Ok(res) => {
-                    self.status = format!(
-                        "tune: objective {} -> {} in {} simulations",
-                        fmt_num(res.outcome.before.objective),
-                        fmt_num(res.outcome.after.objective),
-                        res.outcome.simulations
-                    );
-                    self.tune.result = Some(res);
-                    self.tune.basis = self.tune.job_basis.take();
-                    self.tune.applied = false;
-                }
-                Err(e) => self.tune.error = Some(e),
-            }
-        }
-    }
-
-    /// Waits for a running tune (tests).
-    #[cfg(test)]
-    pub fn wait_tune(&mut self) {
-        while self.tune.job.is_some() {
-            self.poll_tune();
-            std::thread::sleep(std::time::Duration::from_millis(10));
+        if let Some(r) = self.tune.run.poll() {
+            self.status = format!(
+                "tune: objective {} -> {} in {} simulations",
+                fmt_num(r.outcome.before.objective),
+                fmt_num(r.outcome.after.objective),
+                r.outcome.simulations
+            );
         }
     }
 
     /// Why the tune on screen cannot be applied now; None when Apply may go ahead.
     pub fn tune_not_applicable(&self) -> Option<String> {
-        let r = self.tune.result.as_ref()?;
+        let r = self.tune.run.result.as_ref()?;
         if r.outcome.kept_start {
             return Some("nothing beat the values in force: nothing to apply".into());
         }
-        Basis::why_not(self.tune.basis.as_ref(), self.tune.applied, self)
+        self.tune.run.why_not(self)
     }
 
     /// Apply: the preset takes the tuned values; the previous preset is one Undo away.
@@ -201,12 +145,18 @@ impl Workbench {
             self.status = format!("not applied: {why}");
             return;
         }
-        let Some(p) = self.tune.result.as_ref().map(|r| r.outcome.preset.clone()) else {
+        let Some(p) = self
+            .tune
+            .run
+            .result
+            .as_ref()
+            .map(|r| r.outcome.preset.clone())
+        else {
             return;
         };
         let n = self.preset.diff(&p).len();
         self.replace_preset(p, "tune".into());
-        self.tune.applied = true;
+        self.tune.run.applied = true;
         self.status = format!(
             "tuned values applied, {n} fields changed (Undo restores them; save the preset to keep it)"
         );
@@ -221,10 +171,10 @@ pub fn tune_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ));
     settings_ui(wb, ui);
     run_row_ui(wb, ui);
-    if let Some(e) = &wb.tune.error {
+    if let Some(e) = &wb.tune.run.error {
         ui.colored_label(egui::Color32::from_rgb(230, 80, 80), e);
     }
-    if let Some(r) = &wb.tune.result {
+    if let Some(r) = &wb.tune.run.result {
         result_ui(r, ui);
     }
 }
@@ -251,7 +201,7 @@ fn settings_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
 
 fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
     ui.horizontal(|ui| {
-        if let Some(job) = &wb.tune.job {
+        if let Some(job) = &wb.tune.run.job {
             let st = job.progress.lock().ok().and_then(|p| *p);
             let share = st.and_then(|s| s.share_done()).unwrap_or(0.0);
             ui.add(
@@ -269,7 +219,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
                 }
             ));
             if ui.button("Cancel tune").clicked() {
-                job.cancel.store(true, Ordering::Relaxed);
+                wb.tune.run.cancel();
             }
             ui.ctx().request_repaint();
         } else if ui.button("Run tune").clicked() {
@@ -278,7 +228,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         let why_not = wb.tune_not_applicable();
         if ui
             .add_enabled(
-                wb.tune.result.is_some() && why_not.is_none(),
+                wb.tune.run.result.is_some() && why_not.is_none(),
                 egui::Button::new("Apply tuned values"),
             )
             .clicked()
@@ -287,7 +237,7 @@ fn run_row_ui(wb: &mut Workbench, ui: &mut egui::Ui) {
         }
         super::undo_apply_ui(wb, ui);
     });
-    if let (Some(_), Some(why)) = (&wb.tune.result, wb.tune_not_applicable()) {
+    if let (Some(_), Some(why)) = (&wb.tune.run.result, wb.tune_not_applicable()) {
         super::apply_off_ui(ui, &why);
     }
 }
@@ -377,45 +327,16 @@ fn reversal_table_ui(o: &Outcome, ui: &mut egui::Ui) {
     egui::Grid::new("tune-reversals")
         .striped(true)
         .show(ui, |ui| {
-            for h in [
-                "reversal",
-                "t",
-                "peak change before",
-                "after",
-                "ideal axis (floor)",
-                "settled change before",
-                "after",
-            ] {
+            for h in Outcome::TABLE_HEADER {
                 ui.strong(h);
             }
             ui.end_row();
-            for (i, (b, a)) in o
-                .before
-                .reversals
-                .iter()
-                .zip(&o.after.reversals)
-                .enumerate()
-            {
-                ui.label(b.direction.arrow());
-                ui.label(fmt_qty(b.t_s, "s"));
-                ui.label(fmt_qty(mm_to_um(b.peak_err_mm), "um"));
-                ui.label(fmt_qty(mm_to_um(a.peak_err_mm), "um"));
-                ui.label(
-                    o.floor
-                        .reversals
-                        .get(i)
-                        .map_or_else(|| "—".into(), |f| fmt_qty(mm_to_um(f.peak_err_mm), "um")),
-                );
-                ui.label(fmt_qty(mm_to_um(b.settled_err_mm), "um"));
-                ui.label(fmt_qty(mm_to_um(a.settled_err_mm), "um"));
+            for row in o.table() {
+                for cell in row {
+                    ui.label(cell);
+                }
                 ui.end_row();
             }
-            ui.label("RMS error");
-            ui.label("");
-            ui.label(fmt_qty(o.before.rms_um, "um"));
-            ui.label(fmt_qty(o.after.rms_um, "um"));
-            ui.label(fmt_qty(o.floor.rms_um, "um"));
-            ui.end_row();
         });
 }
 

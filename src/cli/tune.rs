@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, Result};
-use axisbench::tune::{self, Job, Progress, Weights, What};
-use axisbench::units::{fmt_qty, mm_to_um};
+use axisbench::tune::{self, Job, Outcome, Progress, Weights, What};
+use axisbench::units::fmt_qty;
 
 use super::{load_with_sets, program_texts};
 
@@ -100,15 +100,12 @@ pub fn run(a: Args) -> Result<()> {
             fmt_qty(st.best, "")
         );
     };
+    let progress = Progress {
+        report: &report,
+        cancel: &cancel,
+    };
     if let Some(n) = a.grid {
-        let g = tune::grid(
-            &job,
-            n,
-            &Progress {
-                report: &report,
-                cancel: &cancel,
-            },
-        )?;
+        let g = tune::grid(&job, n, &progress)?;
         eprintln!();
         say!(
             "grid of {n} values per searched number: objective {} -> best {} ({} simulations, {:.1} s)",
@@ -119,13 +116,7 @@ pub fn run(a: Args) -> Result<()> {
         );
         return Ok(());
     }
-    let out = tune::tune(
-        &job,
-        &Progress {
-            report: &report,
-            cancel: &cancel,
-        },
-    )?;
+    let out = tune::tune(&job, &progress)?;
     eprintln!();
     print_outcome(&out);
     if let Some(path) = &a.out {
@@ -170,37 +161,19 @@ fn print_outcome(o: &tune::Outcome) {
         o.wall_s,
         o.simulations_per_s
     );
-    say!(
-        "  reversal                 peak change before -> after (ideal axis)     settled change before -> after"
-    );
-    for (i, (b, a)) in o
-        .before
-        .reversals
-        .iter()
-        .zip(&o.after.reversals)
-        .enumerate()
-    {
-        let floor = o
-            .floor
-            .reversals
-            .get(i)
-            .map_or_else(|| "-".into(), |f| fmt_qty(mm_to_um(f.peak_err_mm), "um"));
-        say!(
-            "  {} at t = {:>8.4} s   {:>10} -> {:<10} ({:>10})        {:>10} -> {:<10}",
-            b.direction.arrow(),
-            b.t_s,
-            fmt_qty(mm_to_um(b.peak_err_mm), "um"),
-            fmt_qty(mm_to_um(a.peak_err_mm), "um"),
-            floor,
-            fmt_qty(mm_to_um(b.settled_err_mm), "um"),
-            fmt_qty(mm_to_um(a.settled_err_mm), "um"),
-        );
+    let widths = [8, 10, 20, 12, 20, 24, 12];
+    let line = |cells: &[String]| {
+        let text: Vec<String> = cells
+            .iter()
+            .zip(widths)
+            .map(|(c, w)| format!("{c:<w$}"))
+            .collect();
+        say!("  {}", text.join(" ").trim_end());
+    };
+    line(&Outcome::TABLE_HEADER.map(str::to_owned));
+    for row in o.table() {
+        line(&row);
     }
-    say!(
-        "  RMS position error {} -> {}",
-        fmt_qty(o.before.rms_um, "um"),
-        fmt_qty(o.after.rms_um, "um")
-    );
     say!(
         "  of the tuned peak change, {} (mean) is there at the last sample before the reversal (the deceleration into it), out of reach of a compensation the reversal starts",
         fmt_qty(tune::mean_change_before_um(&o.after.reversals), "um")
