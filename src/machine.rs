@@ -114,8 +114,12 @@ pub struct AxisRt {
     pub ch_idx: usize,
     /// Amplifier + mechanics + servo-stage compensations.
     pub axis_loop: AxisLoop,
+    /// The commands of [`ahead_periods`] T2 periods, one row per T3: raw, compensated,
+    /// and the acceleration of the segment each row lies in. Period `i` of a run-ahead
+    /// block is at `i·n23`; a single T2 tick writes at 0.
     buf_raw: Vec<f64>,
     buf_comp: Vec<f64>,
+    buf_acc: Vec<f64>,
     prev_comp_m: f64,
     /// The per-T2 acceleration feed-forward; its segment end is the latest raw command.
     seg: SegmentAcc,
@@ -159,6 +163,18 @@ impl AxisRt {
 /// Rows the recorder stages before it writes them to the trace's columns.
 const STAGE_ROWS: usize = 128;
 
+/// T3 rows the NC may generate ahead of the axes in one block ([`Machine::run_block`]), in
+/// whole T2 periods (at least one). A real NC's look-ahead buffer holds far more; 128 rows
+/// (16 T2 periods, 16 ms, on default.ron) let each axis loop run that many steps without a
+/// break, where the per-block cost is spread thin, and keep the block's buffers in the
+/// first-level cache.
+const AHEAD_ROWS: usize = 128;
+
+/// T2 periods of [`AHEAD_ROWS`] rows at `n23` T3 periods per T2 (at least one).
+fn ahead_periods(n23: usize) -> usize {
+    (AHEAD_ROWS / n23.max(1)).max(1)
+}
+
 /// Values of one cache line: the most rows a flush holds back.
 const LINE_F64: usize = crate::trace::LINE_BYTES / std::mem::size_of::<f64>();
 
@@ -197,6 +213,8 @@ pub struct Machine {
     pub k: u64,
     /// k mod n23: position inside the current T2 period.
     phase: usize,
+    /// Where the current T2 period's rows start in each axis's command buffers.
+    buf_at: usize,
     /// (j + 1)/n23 for j in 0..n23: where each T3 lies on the amplifier's interpolation.
     frac: Vec<f64>,
     /// The NC channels, one per program.
@@ -270,6 +288,7 @@ impl Machine {
             n23,
             k: 0,
             phase: 0,
+            buf_at: 0,
             frac: (1..=n23).map(|j| j as f64 / n23 as f64).collect(),
             ch_target: ch_sizes.iter().map(|&n| vec![0.0; n]).collect(),
             ch_batch: ch_sizes
@@ -353,11 +372,16 @@ impl Machine {
     /// switched on as a step at t = 0.
     fn start_corrected(&mut self) {
         let n23 = self.n23 as usize;
-        for (i, a) in self.axes.iter().enumerate() {
-            self.comp_cmd[i] = a.seg.end_m();
-            self.comp_fb[i] = a.feedback_m();
-            self.comp_temp[i] = a.axis_loop.plant().thermal().temp_c;
+        for ((a, cmd), out) in self
+            .axes
+            .iter()
+            .zip(&mut self.comp_cmd)
+            .zip(&mut self.comp_out)
+        {
+            *cmd = a.seg.end_m();
+            *out = 0.0;
         }
+        self.read_comp_sensors();
         self.comp_prev.clone_from(&self.comp_cmd);
         self.run_position_comps(0.0, self.t3_s * n23 as f64);
         for (i, a) in self.axes.iter_mut().enumerate() {
@@ -660,31 +684,59 @@ impl Machine {
             && (self.rec.is_none() || self.axes.iter().all(|a| a.axis_loop.comps().is_empty()))
     }
 
-    /// One T2 period (or its first `max_steps` T3 steps) as [`Machine::step`] takes it, but
-    /// axis by axis: inside a T2 period an axis's loop depends on nothing but its own
-    /// command buffer, so each axis runs all its periods in one tight loop
-    /// ([`AxisLoop::run`]) without the per-period dispatch, checks and bookkeeping of
-    /// [`Machine::step`]. The NC tick, the inputs, the steps and the trace rows are the same,
-    /// bit for bit (test `a_staged_run_records_the_trace_that_single_steps_record`). PLC
-    /// requests only latch until the next T2 tick, so those falling inside the period are
-    /// handed over at its end.
+    /// Whether the NC may run [`ahead_periods`] T2 periods ahead of the axes in one block: recording
+    /// off (a trace row shows the compensations of its own period), and no position
+    /// compensation that reads the machine at its tick
+    /// ([`crate::comp::PositionComp::reads_machine`]).
+    /// The NC's own state (programs, interpolation, acc/dec, modes) never depends on the
+    /// axes, and PLC requests act only at a tick, so they are handed over tick by tick.
+    fn may_run_ahead(&self) -> bool {
+        self.rec.is_none() && self.comps.position.iter().all(|c| !c.reads_machine())
+    }
+
+    /// One T2 period (or its first `max_steps` T3 steps) as [`Machine::step`] takes it, or
+    /// up to [`ahead_periods`] where the NC may run ahead ([`Machine::may_run_ahead`]),
+    /// but axis by axis: the NC generates every period's commands first, and then each
+    /// axis, whose loop depends on nothing but its own command buffer, runs all its periods
+    /// in one tight loop ([`AxisLoop::run`]) without the per-period dispatch, checks and
+    /// bookkeeping of [`Machine::step`]. The NC ticks, the inputs, the steps and the trace
+    /// rows are the same, bit for bit (tests `a_staged_run_records_the_trace_that_single_steps_record`
+    /// and `the_nc_running_ahead_gives_the_steps_of_single_steps`). PLC requests only latch
+    /// until the next T2 tick, so each tick takes those due by its time, and those falling
+    /// inside the last period are handed over at its end.
     fn run_block(&mut self, max_steps: u64, until_done: bool) {
         let k0 = self.k;
-        let t0 = self.t_s();
-        self.plc_events(t0);
-        self.tick_t2(t0);
-        if self.end_k.is_none() && self.channels.iter().all(Channel::finished) {
-            self.end_k = Some(k0 + 1);
-        }
         let n23 = self.n23 as usize;
-        let mut len = n23
-            .min(usize::try_from(max_steps).unwrap_or(usize::MAX))
-            .max(1);
-        if until_done && let Some(s) = (1..len).find(|&s| self.done_at(k0 + s as u64)) {
-            len = s;
+        let max_len = usize::try_from(max_steps).unwrap_or(usize::MAX).max(1);
+        let periods = if self.may_run_ahead() {
+            ahead_periods(n23)
+        } else {
+            1
+        };
+        let mut len = 0;
+        for i in 0..periods {
+            let kt = k0 + len as u64;
+            if len >= max_len || (i > 0 && until_done && self.done_at(kt)) {
+                break;
+            }
+            let t = kt as f64 * self.t3_s;
+            self.plc_events(t);
+            self.tick_t2(t, len);
+            self.buf_at = len;
+            if self.end_k.is_none() && self.channels.iter().all(Channel::finished) {
+                self.end_k = Some(kt + 1);
+            }
+            let mut n = n23.min(max_len - len);
+            if until_done && let Some(s) = (1..n).find(|&s| self.done_at(kt + s as u64)) {
+                n = s;
+            }
+            len += n;
+            if n < n23 {
+                break;
+            }
         }
         if let Some(rec) = &self.rec
-            && rec.staged + n23 > rec.cap
+            && rec.staged + len > rec.cap
         {
             self.flush_rows(false);
         }
@@ -695,11 +747,11 @@ impl Machine {
                 t3_s: t3,
                 cmd_raw_m: &a.buf_raw[..len],
                 cmd_nc_m: &a.buf_comp[..len],
-                acc_cmd_mps2: a.seg.acc_mps2(),
+                acc_cmd_mps2: &a.buf_acc[..len],
             };
             let sag = a.sag_m;
             match &mut self.rec {
-                None => a.axis_loop.run_quiet(&block),
+                None => a.axis_loop.run_quiet_inlined(&block),
                 Some(rec) => {
                     let (every, cap, first) = (u64::from(rec.every), rec.cap, rec.staged);
                     let (base, temp_col) = (rec.axis_cols[i], rec.temp_cols[i]);
@@ -847,14 +899,16 @@ impl Machine {
         self.plc_events(t);
         let j = self.phase;
         if j == 0 {
-            self.tick_t2(t);
+            self.tick_t2(t, 0);
+            self.buf_at = 0;
         }
+        let row = self.buf_at + j;
         for a in &mut self.axes {
-            a.cmd_nc_m = a.buf_comp[j];
+            a.cmd_nc_m = a.buf_comp[row];
             a.sample_pos_m = a.pos_m;
             a.axis_loop.step(&LoopInput {
                 t_s: t,
-                cmd_raw_m: a.buf_raw[j],
+                cmd_raw_m: a.buf_raw[row],
                 cmd_nc_m: a.cmd_nc_m,
                 acc_cmd_mps2: a.seg.acc_mps2(),
                 ext_force_n: 0.0,
@@ -903,70 +957,108 @@ impl Machine {
         }
     }
 
-    /// Generates the next T2 of commands in every channel and runs the position
-    /// compensations on them.
-    fn tick_t2(&mut self, t: f64) {
+    /// Generates the next T2 of commands in every channel, runs the position compensations
+    /// on them, and writes the period's rows at `at` in each axis's command buffers.
+    fn tick_t2(&mut self, t: f64, at: usize) {
+        let mut any_direct = false;
+        let outputs = self.ch_target.iter_mut().zip(&mut self.ch_batch);
+        for ((ch, mode), (target, batch)) in
+            self.channels.iter_mut().zip(&mut self.ch_mode).zip(outputs)
+        {
+            *mode = ch.tick_t2(target, batch);
+            any_direct |= *mode == Mode::Direct;
+        }
+        self.read_comp_sensors();
         let n23 = self.n23 as usize;
-        for (c, ch) in self.channels.iter_mut().enumerate() {
-            self.ch_mode[c] = ch.tick_t2(&mut self.ch_target[c], &mut self.ch_batch[c]);
-        }
-        for (i, a) in self.axes.iter().enumerate() {
-            self.comp_fb[i] = a.feedback_m();
-            self.comp_temp[i] = a.axis_loop.plant().thermal().temp_c;
-        }
-        let any_direct = self.ch_mode.contains(&Mode::Direct);
-        let gens = if any_direct { n23 } else { 1 };
-        let period = if any_direct {
-            self.t3_s
+        if any_direct {
+            self.generate_direct(t, at);
         } else {
-            self.t3_s * n23 as f64
-        };
-        for g in 0..gens {
-            // (g + 1)·n23 / gens periods of the T2 segment are done after generation g.
-            let done = if any_direct { g + 1 } else { n23 } as f64;
-            for (i, a) in self.axes.iter().enumerate() {
-                let prev_raw = a.seg.end_m();
-                self.comp_cmd[i] = match self.ch_mode[a.channel] {
+            self.generate_normal(t, at);
+        }
+        let last = at + n23 - 1;
+        for a in &mut self.axes {
+            let acc = a.seg.next_segment(a.buf_raw[last]);
+            a.buf_acc[at..=last].fill(acc);
+            a.prev_comp_m = a.buf_comp[last];
+        }
+    }
+
+    /// The sensor readings the position compensations see: feedback and screw temperature
+    /// per axis.
+    fn read_comp_sensors(&mut self) {
+        let readings = self.comp_fb.iter_mut().zip(&mut self.comp_temp);
+        for (a, (fb, temp)) in self.axes.iter().zip(readings) {
+            *fb = a.feedback_m();
+            *temp = a.axis_loop.plant().thermal().temp_c;
+        }
+    }
+
+    /// Every channel in normal mode: one command per axis at the end of the T2 period, which
+    /// the amplifier reaches along a straight line, one point per T3.
+    #[inline]
+    fn generate_normal(&mut self, t: f64, at: usize) {
+        let n23 = self.n23 as usize;
+        for ((a, cmd), out) in self
+            .axes
+            .iter()
+            .zip(&mut self.comp_cmd)
+            .zip(&mut self.comp_out)
+        {
+            *cmd = self.ch_target[a.channel][a.ch_idx];
+            *out = 0.0;
+        }
+        self.run_position_comps(t, self.t3_s * n23 as f64);
+        let frac = &self.frac[..n23];
+        let gens = self.comp_cmd.iter().zip(&self.comp_out);
+        for (a, (&raw, &out)) in self.axes.iter_mut().zip(gens) {
+            ramp(&mut a.buf_raw[at..at + n23], a.seg.end_m(), raw, frac);
+            ramp(
+                &mut a.buf_comp[at..at + n23],
+                a.prev_comp_m,
+                raw + out,
+                frac,
+            );
+        }
+        std::mem::swap(&mut self.comp_prev, &mut self.comp_cmd);
+    }
+
+    /// A channel in direct mode: one command per axis every T3, each compensated on its own.
+    /// An axis of a channel in normal mode meanwhile takes the points of its straight line.
+    fn generate_direct(&mut self, t: f64, at: usize) {
+        let n23 = self.n23 as usize;
+        for g in 0..n23 {
+            for ((a, cmd), out) in self
+                .axes
+                .iter()
+                .zip(&mut self.comp_cmd)
+                .zip(&mut self.comp_out)
+            {
+                *cmd = match self.ch_mode[a.channel] {
                     Mode::Direct => self.ch_batch[a.channel][a.ch_idx * n23 + g],
                     Mode::Normal => {
-                        let target = self.ch_target[a.channel][a.ch_idx];
-                        prev_raw + (target - prev_raw) * done / n23 as f64
+                        let (prev_raw, target) =
+                            (a.seg.end_m(), self.ch_target[a.channel][a.ch_idx]);
+                        prev_raw + (target - prev_raw) * self.frac[g]
                     }
                 };
+                *out = 0.0;
             }
-            self.run_position_comps(t + g as f64 * self.t3_s, period);
-            for ((a, &raw), &out) in self.axes.iter_mut().zip(&self.comp_cmd).zip(&self.comp_out) {
-                let comp = raw + out;
-                if any_direct {
-                    a.buf_raw[g] = raw;
-                    a.buf_comp[g] = comp;
-                } else {
-                    let (prev_raw, prev_comp) = (a.seg.end_m(), a.prev_comp_m);
-                    let rows = a.buf_raw[..n23]
-                        .iter_mut()
-                        .zip(&mut a.buf_comp[..n23])
-                        .zip(&self.frac[..n23]);
-                    for ((r, c), &f) in rows {
-                        *r = prev_raw + (raw - prev_raw) * f;
-                        *c = prev_comp + (comp - prev_comp) * f;
-                    }
-                    a.buf_raw[n23 - 1] = raw;
-                    a.buf_comp[n23 - 1] = comp;
-                }
+            self.run_position_comps(t + g as f64 * self.t3_s, self.t3_s);
+            let gens = self.comp_cmd.iter().zip(&self.comp_out);
+            for (a, (&raw, &out)) in self.axes.iter_mut().zip(gens) {
+                a.buf_raw[at + g] = raw;
+                a.buf_comp[at + g] = raw + out;
             }
             // comp_cmd is written afresh for every axis before it is read again.
             std::mem::swap(&mut self.comp_prev, &mut self.comp_cmd);
         }
-        for a in &mut self.axes {
-            a.seg.next_segment(a.buf_raw[n23 - 1]);
-            a.prev_comp_m = a.buf_comp[n23 - 1];
-        }
     }
 
     /// One position-command generation: every position compensation adds its correction to
-    /// `comp_out` for the command in `comp_cmd`, and any measurement asked for is taken.
+    /// `comp_out` (zeros on entry) for the command in `comp_cmd`, and any measurement asked
+    /// for is taken.
+    #[inline]
     fn run_position_comps(&mut self, t_s: f64, period_s: f64) {
-        self.comp_out.iter_mut().for_each(|o| *o = 0.0);
         let ctx = PosCompCtx {
             t_s,
             period_s,
@@ -1135,14 +1227,27 @@ fn new_axis(
         channel: a.channel,
         ch_idx,
         axis_loop,
-        buf_raw: vec![x0_m; n23],
-        buf_comp: vec![x0_m; n23],
+        buf_raw: vec![x0_m; n23 * ahead_periods(n23)],
+        buf_comp: vec![x0_m; n23 * ahead_periods(n23)],
+        buf_acc: vec![0.0; n23 * ahead_periods(n23)],
         prev_comp_m: x0_m,
         seg: SegmentAcc::new(preset.timing.t2_s, x0_m),
         cmd_nc_m: x0_m,
         sag_m: 0.0,
         pos_m: pos,
         sample_pos_m: pos,
+    }
+}
+
+/// Fills `buf` with the straight line from `from` (the point before it) to `to`: point `j`
+/// lies at `frac[j]` of the way, and the last point is `to` exactly.
+#[inline(always)]
+fn ramp(buf: &mut [f64], from: f64, to: f64, frac: &[f64]) {
+    for (b, &f) in buf.iter_mut().zip(frac) {
+        *b = from + (to - from) * f;
+    }
+    if let Some(last) = buf.last_mut() {
+        *last = to;
     }
 }
 

@@ -268,6 +268,10 @@ fn function_output(seq: &mut Sequence, x: f64) -> f64 {
 }
 
 impl PositionComp for Backlash {
+    fn reads_machine(&self) -> bool {
+        false
+    }
+
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }

@@ -67,6 +67,10 @@ pub fn delta_m(points_m: &[(f64, f64)], x_m: f64) -> f64 {
 }
 
 impl PositionComp for Cross {
+    fn reads_machine(&self) -> bool {
+        false
+    }
+
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }

@@ -363,6 +363,10 @@ impl LinuxCncPosComp {
 }
 
 impl PositionComp for LinuxCncPosComp {
+    fn reads_machine(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &str {
         "linuxcnc"
     }

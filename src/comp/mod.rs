@@ -69,6 +69,13 @@ pub trait PositionComp: Send {
     }
     /// The real displacement measured at the requested point, m.
     fn measured(&mut self, _t_s: f64, _real_m: f64) {}
+    /// Whether the correction reads the machine (feedback, screw temperatures, a
+    /// measurement), so that it must run at each T2 tick as the axes reach it. A correction
+    /// of the command alone says false, which lets the NC run several T2 periods ahead of
+    /// the axes (see `Machine::run_block`).
+    fn reads_machine(&self) -> bool {
+        true
+    }
     /// For [`CompStack::find`]: downcast to the concrete compensation.
     fn as_any(&self) -> &dyn std::any::Any;
     /// For [`CompStack::find_mut`]: downcast to the concrete compensation, e.g. to edit it live.

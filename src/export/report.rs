@@ -557,6 +557,10 @@ struct FrozenThermal {
 }
 
 impl PositionComp for FrozenThermal {
+    fn reads_machine(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &str {
         "frozen_thermal"
     }

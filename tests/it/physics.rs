@@ -849,6 +849,84 @@ fn a_run_that_holds_rows_back_for_whole_lines_records_what_single_steps_record()
     assert_same_trace(&a.trace, &b.trace, "default.ron, run_steps");
 }
 
+/// With recording off, `Machine::run_block` lets the NC generate up to 128 T3 rows (16 T2
+/// periods on default.ron) ahead of the axes when no position compensation reads the
+/// machine at its tick. On every
+/// shipped preset, a run to the end of its program, and a run in chunks of 1 237 steps
+/// (which end blocks inside T2 periods), leave every axis where single steps leave it, bit
+/// for bit, at the same step.
+#[test]
+fn the_nc_running_ahead_gives_the_steps_of_single_steps() {
+    type State = Vec<[u64; 6]>;
+    fn state(m: &axisbench::machine::Machine) -> State {
+        m.axes
+            .iter()
+            .map(|a| {
+                [
+                    a.pos_m,
+                    a.feedback_m(),
+                    a.torque_nm(),
+                    a.cmd_raw_m(),
+                    a.cmd_m(),
+                    a.axis_loop.plant().thermal().temp_c,
+                ]
+                .map(f64::to_bits)
+            })
+            .collect()
+    }
+    let mut cases = Vec::new();
+    for (name, _) in axisbench::preset::EMBEDDED
+        .iter()
+        .filter(|(n, _)| n.ends_with(".ron"))
+    {
+        let lp = axisbench::preset::load_embedded(name).expect("preset");
+        if *name == "default.ron" {
+            // A PLC request 5 ms before the dwell after the first move ends (the command
+            // leaves X100 at 2.2 s), inside a run-ahead block. A switch waits for the end
+            // of a move or dwell, so a request handed over late would switch one move
+            // later. And one while moving.
+            use axisbench::preset::{Mode, PlcEvent};
+            let mut l = lp.clone();
+            l.preset.scenario.plc_events = [(2.1953, Mode::Direct), (3.00011, Mode::Normal)]
+                .iter()
+                .map(|&(t_s, mode)| PlcEvent {
+                    t_s,
+                    mode,
+                    channel: 0,
+                })
+                .collect();
+            cases.push((format!("{name} with PLC mode requests"), l));
+        }
+        cases.push((name.to_string(), lp));
+    }
+    for (name, lp) in cases {
+        let max_s = 30.0003;
+        let mut a = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+        let mut b = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+        a.set_recording(false);
+        b.set_recording(false);
+        a.run(max_s).expect("run");
+        let max_k = (max_s / b.t3_s).ceil() as u64;
+        while !b.done() && b.k < max_k {
+            b.step();
+        }
+        assert_eq!(a.k, b.k, "{name}: the run ended at another step");
+        assert_eq!(state(&a), state(&b), "{name}: the run to the end");
+
+        let mut a = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+        let mut b = axisbench::machine::Machine::from_loaded(&lp).expect("machine");
+        a.set_recording(false);
+        b.set_recording(false);
+        for chunk in 0..24 {
+            a.run_steps(1_237).expect("run");
+            while b.k < a.k {
+                b.step();
+            }
+            assert_eq!(state(&a), state(&b), "{name}: after chunk {chunk}");
+        }
+    }
+}
+
 /// Same columns, same rows, every value the same to the bit.
 fn assert_same_trace(a: &axisbench::trace::Trace, b: &axisbench::trace::Trace, what: &str) {
     assert_eq!(a.signals.len(), b.signals.len(), "{what}");
