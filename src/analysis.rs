@@ -52,8 +52,9 @@ pub struct AxisSummary {
     pub reversals: Vec<Reversal>,
 }
 
-/// Finds reversals of `cmd` (m, as a trace holds it): sign changes of its increments, standstill keeping the last
-/// direction. Returns (index of the first sample moving the new way, +1 for −→+ / −1 for
+/// Finds reversals of `cmd` (m, as a trace holds it): sign changes of its increments, standstill
+/// keeping the last direction. Returns (index of the first sample moving the new way, +1 for −→+ /
+/// −1 for
 /// +→−); the turning point is the sample before it.
 pub fn reversals(cmd: &[f64]) -> Vec<(usize, f64)> {
     let mut out = Vec::new();

@@ -560,16 +560,20 @@ pub(crate) fn program_texts(
     lp: &LoadedPreset,
     program: Option<&PathBuf>,
 ) -> Result<Vec<(String, String)>> {
-    let mut texts = Vec::new();
-    for (i, name) in lp.preset.scenario.programs.iter().enumerate() {
-        match (program, i) {
-            (Some(p), 0) => texts.push((
-                p.display().to_string(),
-                std::fs::read_to_string(p)
-                    .with_context(|| format!("{}: cannot read program", p.display()))?,
-            )),
-            _ => texts.push((name.clone(), lp.program_text(name)?)),
-        }
+    let Some(p) = program else {
+        return Ok(lp.programs()?);
+    };
+    let Some((_, others)) = lp.preset.scenario.programs.split_first() else {
+        return Ok(vec![]);
+    };
+    let first = (
+        p.display().to_string(),
+        std::fs::read_to_string(p)
+            .with_context(|| format!("{}: cannot read program", p.display()))?,
+    );
+    let mut texts = vec![first];
+    for name in others {
+        texts.push((name.clone(), lp.program_text(name)?));
     }
     Ok(texts)
 }

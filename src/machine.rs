@@ -372,15 +372,9 @@ impl Machine {
     /// switched on as a step at t = 0.
     fn start_corrected(&mut self) {
         let n23 = self.n23 as usize;
-        for ((a, cmd), out) in self
-            .axes
-            .iter()
-            .zip(&mut self.comp_cmd)
-            .zip(&mut self.comp_out)
-        {
-            *cmd = a.seg.end_m();
-            *out = 0.0;
-        }
+        load_commands(&self.axes, &mut self.comp_cmd, &mut self.comp_out, |a| {
+            a.seg.end_m()
+        });
         self.read_comp_sensors();
         self.comp_prev.clone_from(&self.comp_cmd);
         self.run_position_comps(0.0, self.t3_s * n23 as f64);
@@ -684,26 +678,26 @@ impl Machine {
             && (self.rec.is_none() || self.axes.iter().all(|a| a.axis_loop.comps().is_empty()))
     }
 
-    /// Whether the NC may run [`ahead_periods`] T2 periods ahead of the axes in one block: recording
-    /// off (a trace row shows the compensations of its own period), and no position
+    /// Whether the NC may run [`ahead_periods`] T2 periods ahead of the axes in one block:
+    /// recording off (a trace row shows the compensations of its own period), and no position
     /// compensation that reads the machine at its tick
-    /// ([`crate::comp::PositionComp::reads_machine`]).
-    /// The NC's own state (programs, interpolation, acc/dec, modes) never depends on the
-    /// axes, and PLC requests act only at a tick, so they are handed over tick by tick.
+    /// ([`crate::comp::PositionComp::reads_machine`]). The NC's own state (programs, interpolation,
+    /// acc/dec, modes) never depends on the axes, and PLC requests act only at a tick, so they are
+    /// handed over tick by tick.
     fn may_run_ahead(&self) -> bool {
         self.rec.is_none() && self.comps.position.iter().all(|c| !c.reads_machine())
     }
 
-    /// One T2 period (or its first `max_steps` T3 steps) as [`Machine::step`] takes it, or
-    /// up to [`ahead_periods`] where the NC may run ahead ([`Machine::may_run_ahead`]),
-    /// but axis by axis: the NC generates every period's commands first, and then each
-    /// axis, whose loop depends on nothing but its own command buffer, runs all its periods
-    /// in one tight loop ([`AxisLoop::run`]) without the per-period dispatch, checks and
-    /// bookkeeping of [`Machine::step`]. The NC ticks, the inputs, the steps and the trace
-    /// rows are the same, bit for bit (tests `a_staged_run_records_the_trace_that_single_steps_record`
-    /// and `the_nc_running_ahead_gives_the_steps_of_single_steps`). PLC requests only latch
-    /// until the next T2 tick, so each tick takes those due by its time, and those falling
-    /// inside the last period are handed over at its end.
+    /// One T2 period (or its first `max_steps` T3 steps) as [`Machine::step`] takes it, or up to
+    /// [`ahead_periods`] where the NC may run ahead ([`Machine::may_run_ahead`]), but axis by axis:
+    /// the NC generates every period's commands first, and then each axis, whose loop depends on
+    /// nothing but its own command buffer, runs all its periods in one tight loop
+    /// ([`AxisLoop::run`]) without the per-period dispatch, checks and bookkeeping of
+    /// [`Machine::step`]. The NC ticks, the inputs, the steps and the trace rows are the same, bit
+    /// for bit (tests `a_staged_run_records_the_trace_that_single_steps_record` and
+    /// `the_nc_running_ahead_gives_the_steps_of_single_steps`). PLC requests only latch until the
+    /// next T2 tick, so each tick takes those due by its time, and those falling inside the last
+    /// period are handed over at its end.
     fn run_block(&mut self, max_steps: u64, until_done: bool) {
         let k0 = self.k;
         let n23 = self.n23 as usize;
@@ -910,7 +904,7 @@ impl Machine {
                 t_s: t,
                 cmd_raw_m: a.buf_raw[row],
                 cmd_nc_m: a.cmd_nc_m,
-                acc_cmd_mps2: a.seg.acc_mps2(),
+                acc_cmd_mps2: a.buf_acc[row],
                 ext_force_n: 0.0,
             });
             a.pos_m = a.axis_loop.plant().out().pos_m + a.sag_m;
@@ -998,15 +992,10 @@ impl Machine {
     #[inline]
     fn generate_normal(&mut self, t: f64, at: usize) {
         let n23 = self.n23 as usize;
-        for ((a, cmd), out) in self
-            .axes
-            .iter()
-            .zip(&mut self.comp_cmd)
-            .zip(&mut self.comp_out)
-        {
-            *cmd = self.ch_target[a.channel][a.ch_idx];
-            *out = 0.0;
-        }
+        let target = &self.ch_target;
+        load_commands(&self.axes, &mut self.comp_cmd, &mut self.comp_out, |a| {
+            target[a.channel][a.ch_idx]
+        });
         self.run_position_comps(t, self.t3_s * n23 as f64);
         let frac = &self.frac[..n23];
         let gens = self.comp_cmd.iter().zip(&self.comp_out);
@@ -1027,22 +1016,20 @@ impl Machine {
     fn generate_direct(&mut self, t: f64, at: usize) {
         let n23 = self.n23 as usize;
         for g in 0..n23 {
-            for ((a, cmd), out) in self
-                .axes
-                .iter()
-                .zip(&mut self.comp_cmd)
-                .zip(&mut self.comp_out)
-            {
-                *cmd = match self.ch_mode[a.channel] {
-                    Mode::Direct => self.ch_batch[a.channel][a.ch_idx * n23 + g],
+            let (mode, batch, target, f) =
+                (&self.ch_mode, &self.ch_batch, &self.ch_target, self.frac[g]);
+            load_commands(
+                &self.axes,
+                &mut self.comp_cmd,
+                &mut self.comp_out,
+                |a| match mode[a.channel] {
+                    Mode::Direct => batch[a.channel][a.ch_idx * n23 + g],
                     Mode::Normal => {
-                        let (prev_raw, target) =
-                            (a.seg.end_m(), self.ch_target[a.channel][a.ch_idx]);
-                        prev_raw + (target - prev_raw) * self.frac[g]
+                        let prev_raw = a.seg.end_m();
+                        prev_raw + (target[a.channel][a.ch_idx] - prev_raw) * f
                     }
-                };
-                *out = 0.0;
-            }
+                },
+            );
             self.run_position_comps(t + g as f64 * self.t3_s, self.t3_s);
             let gens = self.comp_cmd.iter().zip(&self.comp_out);
             for (a, (&raw, &out)) in self.axes.iter_mut().zip(gens) {
@@ -1236,6 +1223,21 @@ fn new_axis(
         sag_m: 0.0,
         pos_m: pos,
         sample_pos_m: pos,
+    }
+}
+
+/// Hands the position compensations one command per axis, `cmd_of(axis)`, in `cmd`, with their
+/// corrections in `out` cleared (they add into it).
+#[inline(always)]
+fn load_commands(
+    axes: &[AxisRt],
+    cmd: &mut [f64],
+    out: &mut [f64],
+    cmd_of: impl Fn(&AxisRt) -> f64,
+) {
+    for ((a, c), o) in axes.iter().zip(cmd).zip(out) {
+        *c = cmd_of(a);
+        *o = 0.0;
     }
 }
 

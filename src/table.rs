@@ -1,5 +1,5 @@
-//! Point tables (x_i, y_i): linear interpolation between points and the end value held
-//! outside the range, as the cross-table patent (SPEC §6) specifies for cross tables and as pitch-error tables
+//! Point tables (x_i, y_i): linear interpolation between points and the end value held outside the
+//! range, as the cross-table patent (SPEC §6) specifies for cross tables and as pitch-error tables
 //! behave on real controls. Shared by the plant (measured lead error) and the compensations.
 
 use std::cell::Cell;

@@ -1,7 +1,8 @@
-//! Auto-tune of the compensation on the simulated machine: backlash (backlash patent, SPEC §2) and quadrant
-//! (quadrant patent, SPEC §5) parameters searched by Nelder–Mead (argmin) against the reversal figures
-//! `simulate` reports, from several starts run side by side; thermal (thermal patent, SPEC §4) and cross
-//! tables (cross-table patent, SPEC §6) through their existing measurements.
+//! Auto-tune of the compensation on the simulated machine: backlash (backlash patent, SPEC §2) and
+//! quadrant (quadrant patent, SPEC §5) parameters searched by Nelder–Mead (argmin) against the
+//! reversal figures `simulate` reports, from several starts run side by side; thermal (thermal
+//! patent, SPEC §4) and cross tables (cross-table patent, SPEC §6) through their existing
+//! measurements.
 //!
 //! The objective is what a service engineer reads off a reversal test: per reversal, the
 //! peak and the settled change of the error (cmd − pos) from its value in the old
@@ -1051,8 +1052,8 @@ pub fn tune(job: &Job<'_>, progress: &Progress<'_>) -> Result<Outcome, TuneError
     })
 }
 
-/// Step 1 (k) and Step 2 (a) of the thermal patent (SPEC §4) on the simulated machine, as the workbench runs
-/// them: a two-hour warm-up program's measurements.
+/// Step 1 (k) and Step 2 (a) of the thermal patent (SPEC §4) on the simulated machine, as the
+/// workbench runs them: a two-hour warm-up program's measurements.
 fn tune_thermal(p: &Preset, job: &Job<'_>) -> Result<Preset, TuneError> {
     let step1 = measure::thermal_step1(p, &job.axis, &[job.programs.to_vec()], 120.0)?;
     let mut q = p.clone();

@@ -31,18 +31,6 @@ impl Basis {
         }
     }
 
-    /// Why a result on `basis` cannot be applied now: applied already, computed on an
-    /// unknown preset, or on another one (see [`Basis::stale`]); None when it may.
-    pub fn why_not(basis: Option<&Basis>, applied: bool, wb: &Workbench) -> Option<String> {
-        if applied {
-            return Some("applied already (Undo restores the values before it)".into());
-        }
-        match basis {
-            Some(b) => b.stale(wb),
-            None => Some("the result's preset is unknown: run it again to apply".into()),
-        }
-    }
-
     /// Why a result on this basis may not be applied to the workbench as it is now; None
     /// when it still belongs to it.
     pub fn stale(&self, wb: &Workbench) -> Option<String> {

@@ -1,6 +1,6 @@
-//! The tuning workbench: the live machine on the left (scenario, program, run controls and
-//! every parameter), linked plots in the middle. A thin layer over the model: every edit
-//! goes through a typed lens on the preset (`edit.rs`), the same validation as files and the CLI, and
+//! The tuning workbench: the live machine on the left (scenario, program, run controls and every
+//! parameter), linked plots in the middle. A thin layer over the model: every edit goes through a
+//! typed lens on the preset (`edit.rs`), the same validation as files and the CLI, and
 //! `Machine::apply_params`, so it takes effect from the next control period.
 
 mod assets;
@@ -903,7 +903,8 @@ impl Workbench {
         });
     }
 
-    /// The NC's initial processing mode and the PLC's mode-switch requests (processing-mode patent, SPEC §3).
+    /// The NC's initial processing mode and the PLC's mode-switch requests (processing-mode patent,
+    /// SPEC §3).
     fn modes_ui(&mut self, ui: &mut egui::Ui) {
         ui.horizontal(|ui| {
             ui.label("Initial mode:");

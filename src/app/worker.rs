@@ -96,9 +96,16 @@ impl<P: Send + 'static, R: Send + 'static> Computed<P, R> {
         }
     }
 
-    /// Why the result cannot be applied to `wb` now ([`Basis::why_not`]).
+    /// Why the result cannot be applied to `wb` now: applied already, computed on an unknown
+    /// preset, or on another one (see [`Basis::stale`]); None when it may.
     pub fn why_not(&self, wb: &Workbench) -> Option<String> {
-        Basis::why_not(self.basis.as_ref(), self.applied, wb)
+        if self.applied {
+            return Some("applied already (Undo restores the values before it)".into());
+        }
+        match &self.basis {
+            Some(b) => b.stale(wb),
+            None => Some("the result's preset is unknown: run it again to apply".into()),
+        }
     }
 
     /// Waits until the running job has its result; the next frame takes it (tests).

@@ -1,4 +1,5 @@
-//! Backlash compensation with a separate output mode per reversal direction (backlash patent, SPEC §2).
+//! Backlash compensation with a separate output mode per reversal direction (backlash patent, SPEC
+//! §2).
 //!
 //! Once per distribution cycle (each generated position command) the sign of the
 //! distributed move command is compared with the last non-zero one. On a reversal the

@@ -1,7 +1,7 @@
-//! The NC: one [`Channel`] per program path. Each T2 it hands the amplifier either one
-//! position per axis (normal mode: interpolated at T1, acc/dec at T1, subdivided to T2) or a
-//! batch of T3 samples per axis (direct-command mode, the processing-mode patent (SPEC §3): every block is one T3 sample,
-//! acc/dec at T3, sent as one batch per T2).
+//! The NC: one [`Channel`] per program path. Each T2 it hands the amplifier either one position per
+//! axis (normal mode: interpolated at T1, acc/dec at T1, subdivided to T2) or a batch of T3 samples
+//! per axis (direct-command mode, the processing-mode patent (SPEC §3): every block is one T3
+//! sample, acc/dec at T3, sent as one batch per T2).
 //!
 //! Mode switches (initial parameter, G05P4/G05P0 in the program, or a PLC request) take
 //! effect at a block boundary once the acc/dec filter has drained, the way a real control

@@ -323,7 +323,8 @@ pub struct StrokeFriction {
     pub recovery_mm: f64,
 }
 
-/// Backlash in the plant: a dead zone between motor and table (what the backlash patent, SPEC §2, compensates).
+/// Backlash in the plant: a dead zone between motor and table (what the backlash patent, SPEC §2,
+/// compensates).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LostMotion {

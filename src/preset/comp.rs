@@ -1,6 +1,7 @@
-//! The compensation settings of a preset: backlash (backlash patent, SPEC §2), quadrant (quadrant patent, SPEC §5), thermal
-//! correction (thermal patent, SPEC §4) and cross tables (cross-table patent, SPEC §6). The state machines that act on them are
-//! in [`crate::comp`]; here is only the data and its validation.
+//! The compensation settings of a preset: backlash (backlash patent, SPEC §2), quadrant (quadrant
+//! patent, SPEC §5), thermal correction (thermal patent, SPEC §4) and cross tables (cross-table
+//! patent, SPEC §6). The state machines that act on them are in [`crate::comp`]; here is only the
+//! data and its validation.
 
 use serde::{Deserialize, Serialize};
 
@@ -16,7 +17,8 @@ pub const E_MAX: f64 = 10.0;
 
 // ---- backlash (backlash patent, SPEC §2)
 
-/// How the backlash correction is output after a reversal (backlash patent, SPEC §2, modes a–c and the variant).
+/// How the backlash correction is output after a reversal (backlash patent, SPEC §2, modes a–c and
+/// the variant).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum OutputMode {
@@ -73,7 +75,8 @@ impl Default for DirectionParams {
     }
 }
 
-/// Backlash compensation of one axis (backlash patent, SPEC §2): amount Q and an output mode per reversal.
+/// Backlash compensation of one axis (backlash patent, SPEC §2): amount Q and an output mode per
+/// reversal.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BacklashParams {
@@ -136,7 +139,8 @@ pub enum PulseShape {
     Exponential,
 }
 
-/// Quadrant (reversal) compensation of one axis, adapting to short strokes (quadrant patent, SPEC §5).
+/// Quadrant (reversal) compensation of one axis, adapting to short strokes (quadrant patent, SPEC
+/// §5).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct QuadrantParams {
@@ -209,7 +213,8 @@ impl QuadrantParams {
 
 // ---- thermal (thermal patent, SPEC §4)
 
-/// What the thermal predictor computes F from (thermal patent, SPEC §4: operation and/or temperatures).
+/// What the thermal predictor computes F from (thermal patent, SPEC §4: operation and/or
+/// temperatures).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Source {
@@ -220,7 +225,8 @@ pub enum Source {
     Temperature,
 }
 
-/// When the thermal correction asks for a re-measurement (thermal patent, SPEC §4, variants 1–3), threshold Em.
+/// When the thermal correction asks for a re-measurement (thermal patent, SPEC §4, variants 1–3),
+/// threshold Em.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Judgement {
@@ -235,7 +241,8 @@ pub enum Judgement {
     Reference,
 }
 
-/// Thermal displacement correction of one axis with automatic re-measurement (thermal patent, SPEC §4).
+/// Thermal displacement correction of one axis with automatic re-measurement (thermal patent, SPEC
+/// §4).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ThermalParams {
@@ -311,7 +318,8 @@ impl ThermalParams {
 
 // ---- cross tables (cross-table patent, SPEC §6)
 
-/// One cross (sag) compensation table (cross-table patent, SPEC §6): ΔZ of one axis over another's position.
+/// One cross (sag) compensation table (cross-table patent, SPEC §6): ΔZ of one axis over another's
+/// position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CrossTable {

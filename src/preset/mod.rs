@@ -172,7 +172,8 @@ pub struct Timing {
     pub t3_s: f64,
 }
 
-/// NC processing mode (processing-mode patent, SPEC §3), switchable at run time by G05P4/G05P0 or a PLC event.
+/// NC processing mode (processing-mode patent, SPEC §3), switchable at run time by G05P4/G05P0 or a
+/// PLC event.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum Mode {
@@ -313,7 +314,8 @@ fn one() -> u32 {
     1
 }
 
-/// A PLC request to switch a channel's processing mode at a set time (processing-mode patent, SPEC §3).
+/// A PLC request to switch a channel's processing mode at a set time (processing-mode patent, SPEC
+/// §3).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlcEvent {
